@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Prepare a fresh Debian 12 machine (or an existing one) for setupcam: system packages, a virtualenv
+# in .venv, and the project installed into it. Idempotent and quick when nothing changed.
+#   scripts/bootstrap.sh          # what the service needs
+#   scripts/bootstrap.sh test     # plus what the test suite needs (browser, controller sim, ...)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+mode=${1:-run}
+PY=${PYTHON:-python3.11}
+
+need_apt=()
+have_pkg() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"; }
+if ! command -v "$PY" >/dev/null 2>&1; then need_apt+=(python3.11 python3.11-venv); fi
+if ! "$PY" -c "import venv, ensurepip" >/dev/null 2>&1; then need_apt+=(python3.11-venv); fi
+if [ "$mode" = test ]; then
+  while read -r pkg; do
+    pkg=${pkg%%#*}; pkg=$(echo "$pkg" | xargs)
+    [ -n "$pkg" ] && ! have_pkg "$pkg" && need_apt+=("$pkg")
+  done < scripts/apt-packages.txt
+fi
+if [ ${#need_apt[@]} -gt 0 ]; then
+  echo "bootstrap: installing system packages: ${need_apt[*]}"
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO=sudo
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${need_apt[@]}"
+fi
+if [ "$mode" = test ] && [ -x scripts/install-linuxcnc.sh ]; then scripts/install-linuxcnc.sh; fi
+
+if [ ! -x .venv/bin/python ]; then "$PY" -m venv .venv; fi
+extras=""; [ "$mode" = test ] && extras="[test]"
+stamp=".venv/.installed-$mode-$(sha256sum pyproject.toml | cut -c1-16)"
+if [ ! -f "$stamp" ]; then
+  .venv/bin/pip install -q --upgrade pip
+  .venv/bin/pip install -q -e ".$extras"
+  touch "$stamp"
+fi

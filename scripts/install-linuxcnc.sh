@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Install the LinuxCNC simulator used by tests/machine (Debian 12 package linuxcnc-uspace) and check
+# that what the tests need is there. Idempotent: a no-op (< 1 s) when already installed.
+# Without --no-install-recommends apt would pull a realtime kernel, PyQt5, OpenCV, ... (459 packages).
+set -euo pipefail
+if ! dpkg-query -W -f='${Status}' linuxcnc-uspace 2>/dev/null | grep -q "install ok installed"; then
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO=sudo
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends linuxcnc-uspace
+fi
+for exe in linuxcnc linuxcncrsh; do
+  command -v "$exe" >/dev/null || { echo "install-linuxcnc: $exe missing after installing linuxcnc-uspace" >&2; exit 1; }
+done
+# the tests read LinuxCNC's own status through Debian's module (built for CPython 3.11 only)
+/usr/bin/python3 -c "import sys; sys.path.append('/usr/lib/python3/dist-packages'); import linuxcnc" \
+  || { echo "install-linuxcnc: /usr/bin/python3 cannot import the linuxcnc module" >&2; exit 1; }
