@@ -1,0 +1,64 @@
+"""One settings object, read from the environment (and an optional ``.env``).
+
+Two services with different ``SETUPCAM_DATA_DIR`` / ``DATABASE_URL`` / ports run side by side.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_file=".env", extra="ignore", populate_by_name=True)
+
+    data_dir: Path = Field(default=Path("var"), validation_alias="SETUPCAM_DATA_DIR",
+                           description="Folder for the SQLite file, uploads, meshes and job images.")
+    database_url: str = Field(default="", validation_alias="DATABASE_URL",
+                              description="SQLAlchemy URL; empty means SQLite under data_dir.")
+    viser_port: int = Field(default=8081, validation_alias="SETUPCAM_VISER_PORT")
+    models_library_dir: Path = Field(
+        default=Path(__file__).resolve().parent.parent / "models_library",
+        validation_alias="SETUPCAM_MODELS_LIBRARY",
+        description="Example library loaded on first start (idempotent).",
+    )
+    load_example_library: bool = Field(default=True, validation_alias="SETUPCAM_LOAD_EXAMPLES")
+    max_upload_mb: float = Field(default=64.0, validation_alias="SETUPCAM_MAX_UPLOAD_MB")
+    max_mesh_faces: int = Field(default=2_000_000, validation_alias="SETUPCAM_MAX_MESH_FACES")
+    workers: int = Field(default=1, validation_alias="SETUPCAM_WORKERS",
+                         description="Background job threads in the service process.")
+    max_tilt_deg: float = Field(default=0.2, validation_alias="SETUPCAM_MAX_TILT_DEG",
+                                description="Residual tilt a 3-axis work offset may ignore; above it export is refused.")
+    max_sigma_mm: float = Field(default=0.3, validation_alias="SETUPCAM_MAX_SIGMA_MM",
+                                description="1-sigma position uncertainty (x, y, z) a result may have to pass.")
+    max_sigma_deg: float = Field(default=0.05, validation_alias="SETUPCAM_MAX_SIGMA_DEG",
+                                 description="1-sigma rotation uncertainty about z a result may have to pass.")
+    max_offset_change_mm: float = Field(default=5.0, validation_alias="SETUPCAM_MAX_OFFSET_CHANGE_MM",
+                                        description="Export needs an acknowledgement when X/Y/Z change more than this.")
+    max_offset_change_deg: float = Field(default=2.0, validation_alias="SETUPCAM_MAX_OFFSET_CHANGE_DEG")
+    webhooks: list[dict] = Field(default_factory=list, validation_alias="SETUPCAM_WEBHOOKS",
+                                 description='JSON list of {"url": ..., "secret": ...}; events are POSTed, '
+                                             'signed with HMAC-SHA256 in X-Setupcam-Signature.')
+    mqtt_url: str = Field(default="", validation_alias="SETUPCAM_MQTT_URL",
+                          description="e.g. mqtt://127.0.0.1:1883; events go to <topic prefix>/<event type>")
+    mqtt_topic_prefix: str = Field(default="setupcam", validation_alias="SETUPCAM_MQTT_TOPIC_PREFIX")
+    log_json: bool = Field(default=True, validation_alias="SETUPCAM_LOG_JSON")
+
+    @model_validator(mode="after")
+    def _defaults(self) -> "Settings":
+        self.data_dir = self.data_dir.resolve()
+        if not self.database_url:
+            self.database_url = f"sqlite:///{self.data_dir / 'setupcam.db'}"
+        return self
+
+    @property
+    def files_dir(self) -> Path:
+        return self.data_dir / "files"
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()
