@@ -1,0 +1,110 @@
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.geometry.library_manifest import LibraryManifestError, load_library_manifest
+from app.geometry.mesh import load_mesh, mesh_summary
+
+LIBRARY = Path(__file__).resolve().parents[2] / "models_library"
+
+
+def test_manifest_loads_and_every_file_is_a_valid_mesh():
+    entries = load_library_manifest(LIBRARY)
+    kinds = [e.kind for e in entries]
+    assert kinds.count("table") == 1 and kinds.count("clamp") >= 3 and kinds.count("workpiece") >= 3
+    sizes = []
+    for e in entries:
+        m = load_mesh(e.path.read_bytes(), e.file, e.units)
+        s = mesh_summary(m)
+        assert s["watertight"], e.key
+        if e.kind == "workpiece":
+            assert e.T_obj_datum is not None
+            sizes.append(max(s["extents_mm"]))
+            # the datum lies on the part's bounding box top face
+            assert e.T_obj_datum[2, 3] == pytest.approx(s["bbox_max_mm"][2])
+    assert min(sizes) <= 35 and max(sizes) >= 280  # ~30 mm to ~300 mm
+    assert sum(p.stat().st_size for p in LIBRARY.iterdir()) < 2_000_000  # small committed files
+
+
+def test_table_entry_extents_and_layout():
+    (table,) = [e for e in load_library_manifest(LIBRARY) if e.kind == "table"]
+    m = load_mesh(table.path.read_bytes(), table.file, table.units)
+    assert np.allclose(m.bounds[:, :2], [[0, 0], [800, 400]])
+    assert m.bounds[1, 2] == pytest.approx(0.0) and 60 <= m.extents[2] <= 80
+    assert table.layout is not None and table.layout.dictionary == "DICT_5X5_100"
+    assert 10 <= len(table.layout.markers) <= 14
+
+
+def test_committed_files_match_the_generator():
+    """The committed library is what build_library.py makes from app/geometry/parts.py today."""
+    from app.geometry.parts import example_library
+
+    entries = {e.key: e for e in load_library_manifest(LIBRARY)}
+    models = example_library()
+    assert [m.key for m in models] == list(entries)
+    for model in models:
+        e = entries[model.key]
+        stale = f"{model.key} is stale: rerun models_library/build_library.py"
+        assert e.kind == model.kind and e.name == model.name, stale
+        # compare geometry, not bytes: another manifold3d version may order triangles differently
+        committed = load_mesh(e.path.read_bytes(), e.file, e.units)
+        assert np.allclose(committed.bounds, model.mesh.bounds, atol=1e-4), stale
+        assert committed.volume == pytest.approx(model.mesh.volume, rel=1e-6), stale
+        assert committed.area == pytest.approx(model.mesh.area, rel=1e-6), stale
+        if model.T_obj_datum is None:
+            assert e.T_obj_datum is None, stale
+        else:
+            assert np.allclose(e.T_obj_datum, model.T_obj_datum, atol=1e-6), stale
+        if model.layout is None:
+            assert e.layout is None, stale
+        else:
+            assert json.loads(e.fiducials_path.read_text()) == json.loads(json.dumps(model.layout)), stale
+
+
+def _copy_library(tmp_path: Path) -> tuple[Path, dict]:
+    d = tmp_path / "lib"
+    shutil.copytree(LIBRARY, d, ignore=shutil.ignore_patterns("*.py", "*.pdf", "*.svg"))
+    return d, json.loads((d / "library.json").read_text())
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda doc: doc["models"][1].update(kind="fixture"), "kind 'fixture' unknown; use one of workpiece, clamp, table"),
+    (lambda doc: doc["models"][1].update(units="m"), "units 'm' unknown"),
+    (lambda doc: doc["models"][1].update(file="missing.stl"), "file 'missing.stl' not found"),
+    (lambda doc: doc["models"][1].update(file="../../etc/passwd.stl"), "must be a path inside the library folder"),
+    (lambda doc: doc["models"][1].update(file="vise_150.dxf"), "is not a supported mesh"),
+    (lambda doc: doc["models"][4].update(T_obj_datum=np.diag([1.0, 1.0, -1.0, 1.0]).tolist()), "reflection"),
+    (lambda doc: doc["models"][4].update(T_obj_datum=[[1, 0, 0]]), "T_obj_datum: expected shape (4, 4)"),
+    (lambda doc: doc["models"][2].update(key=doc["models"][1]["key"]), "key 'vise_150' appears twice"),
+    (lambda doc: doc["models"][0].update(fiducials=None), "a table needs a fiducial layout"),
+    (lambda doc: doc["models"][2].update(key="Bad Key!"), "key must be"),
+    (lambda doc: doc.pop("models"), 'expected an object {"models": [...]}'),
+])
+def test_bad_manifest_is_refused_with_a_clear_sentence(tmp_path, mutate, message):
+    d, doc = _copy_library(tmp_path)
+    mutate(doc)
+    (d / "library.json").write_text(json.dumps(doc))
+    with pytest.raises(LibraryManifestError) as e:
+        load_library_manifest(d)
+    assert message in str(e.value)
+
+
+def test_bad_fiducial_layout_names_the_marker(tmp_path):
+    d, _ = _copy_library(tmp_path)
+    fpath = d / "tslot_table_800x400.fiducials.json"
+    layout = json.loads(fpath.read_text())
+    layout["markers"][3]["id"] = layout["markers"][2]["id"]
+    fpath.write_text(json.dumps(layout))
+    with pytest.raises(LibraryManifestError, match=r"tslot_table_800x400.*marker id 2 appears twice"):
+        load_library_manifest(d)
+
+
+def test_missing_or_broken_manifest(tmp_path):
+    with pytest.raises(LibraryManifestError, match="no library.json in"):
+        load_library_manifest(tmp_path)
+    (tmp_path / "library.json").write_text("{not json")
+    with pytest.raises(LibraryManifestError, match="is not valid JSON"):
+        load_library_manifest(tmp_path)
