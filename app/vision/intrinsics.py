@@ -1,0 +1,68 @@
+"""Camera intrinsics in the DESIGN format (OpenCV model), validated on entry.
+
+    {"width": 1920, "height": 1200, "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
+     "dist": [k1, k2, p1, p2, k3]}
+
+Pixel convention: (u, v) = (x right, y down) in px, pixel centres at integer coordinates, so a
+pixel is ``img[v, u]``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+
+
+class Intrinsics(BaseModel):
+    width: int = Field(gt=0, le=100_000, examples=[1920])
+    height: int = Field(gt=0, le=100_000, examples=[1200])
+    K: list[list[float]] = Field(examples=[[[1600.0, 0.0, 960.0], [0.0, 1600.0, 600.0], [0.0, 0.0, 1.0]]])
+    dist: list[float] = Field(default_factory=lambda: [0.0] * 5, examples=[[-0.1, 0.05, 0.0, 0.0, 0.0]])
+
+    @field_validator("dist")
+    @classmethod
+    def _dist_len(cls, v: list[float]) -> list[float]:
+        if len(v) not in (4, 5, 8, 12, 14):
+            raise ValueError(f"dist must have 4, 5, 8, 12 or 14 coefficients (OpenCV model), got {len(v)}")
+        if not all(np.isfinite(v)):
+            raise ValueError("dist contains NaN or infinity")
+        return v
+
+    @model_validator(mode="after")
+    def _k_shape(self) -> "Intrinsics":
+        K = np.asarray(self.K, dtype=float)
+        if K.shape != (3, 3):
+            raise ValueError(f"K must be 3x3, got shape {K.shape}")
+        if not np.all(np.isfinite(K)):
+            raise ValueError("K contains NaN or infinity")
+        if K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise ValueError(f"K focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+        if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+            raise ValueError("K must be upper triangular with last row [0, 0, 1]")
+        return self
+
+    @property
+    def K_array(self) -> np.ndarray:
+        return np.asarray(self.K, dtype=float)
+
+    @property
+    def dist_array(self) -> np.ndarray:
+        return np.asarray(self.dist, dtype=float)
+
+
+def parse_intrinsics(data: dict) -> Intrinsics:
+    """Validate an intrinsics dict; ValueError with one readable sentence on bad input."""
+    try:
+        return Intrinsics.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise ValueError(f"intrinsics invalid{' at ' + where if where else ''}: "
+                         f"{first['msg'].removeprefix('Value error, ')}") from None
+
+
+def load_intrinsics(path: str | Path) -> Intrinsics:
+    return parse_intrinsics(json.loads(Path(path).read_text()))
