@@ -1,0 +1,633 @@
+"""Edge models of CAD parts for image matching: feature edges, silhouettes, hidden lines, resting
+states and rotational symmetry.
+
+A model is prepared once (:func:`prepare_model`, picklable, so callers may cache it) and then asked,
+for one pose ``T_cam_obj`` and one camera, which of its edges the camera sees
+(:func:`visible_edge_samples`): crease edges with at least one front-facing face, silhouette edges
+(front face next to a back face) and no edge hidden behind the model itself or behind other
+models (occluders such as vise jaws), decided by a z-buffer.
+
+Conventions (DESIGN.md): poses ``T_a_b`` 4x4, mm; pixel coordinates ``uv_px`` (N, 2) are OpenCV's
+(u right, v down) with pixel centres at integer coordinates; the camera model is OpenCV's pinhole with
+distortion ``dist = (k1, k2, p1, p2, k3)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from app.geometry.mesh import resting_poses
+from app.geometry.transforms import inv, make_pose, transform_points
+
+__all__ = [
+    "RestingState",
+    "Symmetry",
+    "PreparedModel",
+    "EdgeSamples",
+    "prepare_model",
+    "project_points_px",
+    "render_depth",
+    "visible_edge_samples",
+    "resting_pose",
+    "detect_symmetries",
+]
+
+
+# --------------------------------------------------------------------------------------------------
+# data
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class RestingState:
+    """One way the part can lie on a flat table.
+
+    T_rest_obj : ndarray (4, 4)
+        Pose of the obj (CAD) frame in the resting frame; the resting frame has z up, its xy plane is
+        the table top (the part's lowest point at z = 0) and its origin under the part's centre of mass.
+        A part in this state at (x, y) rotated by theta about the table normal is at
+        ``T_table_obj = Trans(x, y, h) @ Rz(theta) @ T_rest_obj`` (see :func:`resting_pose`).
+    probability : float
+        Quasi-static probability of the state from :func:`trimesh.poses.compute_stable_poses`.
+    height_mm : float
+        Height of the part's top above the table in this state.
+    same_as : int
+        Index of an earlier state that is the same state up to a symmetry of the part, or -1.
+    """
+
+    T_rest_obj: np.ndarray
+    probability: float
+    height_mm: float
+    same_as: int = -1
+
+
+@dataclass(frozen=True, eq=False)
+class Symmetry:
+    """A rotation that maps the part onto itself, as a pose ``S = T_obj_obj'``.
+
+    If ``T_table_obj`` fits the image, so does ``T_table_obj @ S`` (the same shape, a different datum).
+    ``exact`` symmetries map the whole surface (within ``max_dev_mm``) and cannot be told apart in any
+    image; "near" ones map the outline but not small features (holes, chamfers): the fit must decide by
+    those features and report how sure it is.
+    """
+
+    S: np.ndarray
+    axis_obj: np.ndarray
+    angle_deg: float
+    matched_fraction: float
+    exact: bool
+
+    def to_dict(self) -> dict:
+        return {"S": self.S.tolist(), "axis_obj": self.axis_obj.tolist(), "angle_deg": self.angle_deg,
+                "matched_fraction": self.matched_fraction, "exact": self.exact}
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedModel:
+    """A CAD model prepared for edge matching (build it with :func:`prepare_model`).
+
+    Edge arrays describe the mesh edges that can ever show in an image: crease edges (dihedral angle
+    above ``feature_angle_deg``), boundary edges, and curved-surface edges (angle above
+    ``smooth_angle_deg``) that show as silhouettes only.
+    """
+
+    name: str
+    mesh: trimesh.Trimesh
+    edge_vertices: np.ndarray        # (E, 2) vertex indices
+    edge_faces: np.ndarray           # (E, 2) adjacent face indices, -1 for a boundary edge
+    edge_feature: np.ndarray         # (E,) bool: crease/boundary (True) or smooth, silhouette only
+    samples_obj: np.ndarray          # (S, 3) points on the edges, obj frame, mm
+    sample_edge: np.ndarray          # (S,) edge index of each sample
+    sample_dir_obj: np.ndarray       # (S, 3) unit direction of the sample's edge
+    sample_corner_mm: np.ndarray     # (S,) distance to the nearest corner (end of a straight run), mm
+    sample_step_mm: float
+    resting_states: tuple[RestingState, ...]
+    symmetries: tuple[Symmetry, ...]
+    continuous_axis_obj: np.ndarray | None  # axis of a continuous (round) symmetry, or None
+    center_obj: np.ndarray           # (3,) centre of mass, obj frame
+    diameter_mm: float
+    feature_angle_deg: float
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def face_normals(self) -> np.ndarray:
+        return self.mesh.face_normals
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "n_faces": int(len(self.mesh.faces)),
+            "n_edges": int(len(self.edge_vertices)),
+            "n_samples": int(len(self.samples_obj)),
+            "sample_step_mm": self.sample_step_mm,
+            "diameter_mm": self.diameter_mm,
+            "resting_states": [
+                {"T_rest_obj": r.T_rest_obj.tolist(), "probability": r.probability,
+                 "height_mm": r.height_mm, "same_as": r.same_as} for r in self.resting_states],
+            "symmetries": [s.to_dict() for s in self.symmetries],
+            "continuous_axis_obj": None if self.continuous_axis_obj is None
+            else self.continuous_axis_obj.tolist(),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class EdgeSamples:
+    """Model edge samples visible in one view.
+
+    index : (N,) indices into ``model.samples_obj``
+    points_obj : (N, 3) mm, obj frame
+    points_cam : (N, 3) mm, camera frame
+    uv_px : (N, 2) projected (with distortion) pixel positions
+    normal_uv : (N, 2) unit image normals of the projected edge (perpendicular to the edge's image)
+    silhouette : (N,) True where the edge is an outline of the part (one adjacent face turned away)
+    """
+
+    index: np.ndarray
+    points_obj: np.ndarray
+    points_cam: np.ndarray
+    uv_px: np.ndarray
+    normal_uv: np.ndarray
+    silhouette: np.ndarray
+    n_front: int  # samples before the occlusion test (front-facing or silhouette, inside the image)
+
+
+# --------------------------------------------------------------------------------------------------
+# projection and z-buffer
+# --------------------------------------------------------------------------------------------------
+
+
+def project_points_px(P_cam: np.ndarray, K: np.ndarray, dist=None) -> np.ndarray:
+    """Project camera-frame points (N, 3) mm to pixels (N, 2) with OpenCV's distortion model.
+
+    Same maths as ``cv2.projectPoints`` for ``dist = (k1, k2, p1, p2[, k3])``, vectorised and without
+    the per-call overhead. Points behind the camera give NaN.
+    """
+    P = np.asarray(P_cam, dtype=float).reshape(-1, 3)
+    z = P[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = P[:, 0] / z
+        y = P[:, 1] / z
+    if dist is not None and np.any(np.asarray(dist, dtype=float) != 0):
+        d = np.zeros(5)
+        dd = np.asarray(dist, dtype=float).ravel()[:5]
+        d[: len(dd)] = dd
+        k1, k2, p1, p2, k3 = d
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    else:
+        xd, yd = x, y
+    uv = np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
+    uv[z <= 1e-6] = np.nan
+    return uv
+
+
+def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, width: int,
+                 height: int, max_pixel_tests: int = 6_000_000, cull_back_faces: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Z-buffer of triangle meshes seen by a pinhole camera (no distortion).
+
+    Parameters
+    ----------
+    meshes_cam : list of (vertices (V, 3) mm in the camera frame, faces (F, 3) int)
+    K : (3, 3) intrinsics of the (possibly scaled) buffer; pixel centres at integer coordinates
+    width, height : buffer size in px
+
+    Returns
+    -------
+    depth : (height, width) float32, camera z in mm of the nearest surface, +inf where empty
+    face_id : (height, width) int64, ``mesh_index * 2**32 + face_index`` of that surface, -1 where empty
+    """
+    depth = np.full(height * width, np.inf, dtype=np.float64)
+    face_id = np.full(height * width, -1, dtype=np.int64)
+    all_pix, all_z, all_id = [], [], []
+    budget = max_pixel_tests
+    for mi, (V, F) in enumerate(meshes_cam):
+        V = np.asarray(V, dtype=float)
+        F = np.asarray(F, dtype=np.int64)
+        tri = V[F]                                   # (F, 3, 3)
+        ok = np.all(tri[:, :, 2] > 1.0, axis=1)      # drop faces behind/at the camera (no clipping)
+        if cull_back_faces:   # closed meshes: a face turned away is never the nearest surface
+            nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            ok &= np.einsum("ij,ij->i", nrm, tri[:, 0]) < 0
+        fidx = np.nonzero(ok)[0]
+        tri = tri[ok]
+        if len(tri) == 0:
+            continue
+        zt = tri[:, :, 2]
+        u = K[0, 0] * tri[:, :, 0] / zt + K[0, 2]
+        v = K[1, 1] * tri[:, :, 1] / zt + K[1, 2]
+        # scanline rasterisation: one (face, row) pair per covered pixel row, then the row's span
+        y0 = np.clip(np.ceil(v.min(1)), 0, height).astype(np.int64)
+        y1 = np.clip(np.floor(v.max(1)), -1, height - 1).astype(np.int64)
+        nrow = np.maximum(y1 - y0 + 1, 0)
+        ua, ub, uc = u[:, 0], u[:, 1], u[:, 2]
+        va, vb, vc = v[:, 0], v[:, 1], v[:, 2]
+        den = (vb - vc) * (ua - uc) + (uc - ub) * (va - vc)
+        good = (np.abs(den) > 1e-9) & (nrow > 0)
+        if not np.any(good):
+            continue
+        fidx, u, v, zt, y0, nrow = fidx[good], u[good], v[good], zt[good], y0[good], nrow[good]
+        ua, ub, uc, va, vb, vc, den = ua[good], ub[good], uc[good], va[good], vb[good], vc[good], den[good]
+        # barycentrics l_k = A_k x + B_k y + C_k
+        A0, B0 = (vb - vc) / den, (uc - ub) / den
+        C0 = -A0 * uc - B0 * vc
+        A1, B1 = (vc - va) / den, (ua - uc) / den
+        C1 = -A1 * uc - B1 * vc
+        A = np.stack([A0, A1, -A0 - A1], 1)
+        B = np.stack([B0, B1, -B0 - B1], 1)
+        C = np.stack([C0, C1, 1.0 - C0 - C1], 1)
+        nr = int(nrow.sum())
+        if nr > budget:
+            raise ValueError(f"z-buffer needs {nr} rows, more than {budget}; render smaller")
+        rf = np.repeat(np.arange(len(nrow)), nrow)
+        py_r = y0[rf] + (np.arange(nr) - (np.cumsum(nrow) - nrow)[rf])
+        rhs = -(B[rf] * py_r[:, None] + C[rf])           # A x >= rhs for every k
+        Ar = A[rf]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound = rhs / Ar
+        lo = np.max(np.where(Ar > 1e-12, bound, np.where(np.abs(Ar) <= 1e-12, np.where(rhs <= 1e-12, -np.inf, np.inf), -np.inf)), axis=1)
+        hi = np.min(np.where(Ar < -1e-12, bound, np.inf), axis=1)
+        x0 = np.clip(np.ceil(lo - 1e-9), 0, width).astype(np.int64)
+        x1 = np.clip(np.floor(hi + 1e-9), -1, width - 1).astype(np.int64)
+        cnt = np.maximum(x1 - x0 + 1, 0)
+        total = int(cnt.sum())
+        if total > budget:
+            raise ValueError(f"z-buffer needs {total} pixel tests, more than {budget}; render smaller")
+        budget -= total
+        rep_r = np.repeat(np.arange(nr), cnt)
+        px = x0[rep_r] + (np.arange(total) - (np.cumsum(cnt) - cnt)[rep_r])
+        py = py_r[rep_r]
+        rep = rf[rep_r]
+        l0 = A0[rep] * px + B0[rep] * py + C0[rep]
+        l1 = A1[rep] * px + B1[rep] * py + C1[rep]
+        l2 = 1.0 - l0 - l1
+        invz = l0 / zt[rep, 0] + l1 / zt[rep, 1] + l2 / zt[rep, 2]   # perspective-correct depth
+        all_pix.append(py * width + px)
+        all_z.append(1.0 / invz)
+        all_id.append((np.int64(mi) << 32) + fidx[rep])
+    if all_pix:
+        pix = np.concatenate(all_pix)
+        z = np.concatenate(all_z)
+        ids = np.concatenate(all_id)
+        np.minimum.at(depth, pix, z)
+        win = z <= depth[pix]
+        face_id[pix[win]] = ids[win]
+    return depth.reshape(height, width).astype(np.float32), face_id.reshape(height, width)
+
+
+# --------------------------------------------------------------------------------------------------
+# preparation
+# --------------------------------------------------------------------------------------------------
+
+
+def _edge_table(mesh: trimesh.Trimesh, smooth_angle_deg: float, feature_angle_deg: float):
+    adj_edges = mesh.face_adjacency_edges                     # (A, 2)
+    adj_faces = mesh.face_adjacency                           # (A, 2)
+    ang = np.degrees(mesh.face_adjacency_angles)
+    keep = ang > smooth_angle_deg
+    ev = [adj_edges[keep]]
+    ef = [adj_faces[keep]]
+    feat = [ang[keep] > feature_angle_deg]
+    # boundary edges (open meshes): edges used by a single face
+    edges_sorted = mesh.edges_sorted
+    grp = trimesh.grouping.group_rows(edges_sorted, require_count=1)
+    if len(grp):
+        ev.append(edges_sorted[grp])
+        ef.append(np.stack([mesh.edges_face[grp], -np.ones(len(grp), dtype=np.int64)], axis=1))
+        feat.append(np.ones(len(grp), dtype=bool))
+    return (np.concatenate(ev).astype(np.int64), np.concatenate(ef).astype(np.int64),
+            np.concatenate(feat))
+
+
+def _sample_edges(vertices: np.ndarray, edge_vertices: np.ndarray, step_mm: float):
+    a = vertices[edge_vertices[:, 0]]
+    b = vertices[edge_vertices[:, 1]]
+    L = np.linalg.norm(b - a, axis=1)
+    n = np.maximum(1, np.ceil(L / step_mm).astype(np.int64))
+    rep = np.repeat(np.arange(len(L)), n)
+    start = np.cumsum(n) - n
+    k = np.arange(int(n.sum())) - start[rep]
+    t = (k + 0.5) / n[rep]
+    pts = a[rep] + (b - a)[rep] * t[:, None]
+    d = (b - a) / np.maximum(L, 1e-12)[:, None]
+    return pts, rep, d[rep]
+
+
+def _corner_distance(vertices, ev, feat, pts, rep, corner_angle_deg: float = 30.0) -> np.ndarray:
+    """Distance (mm) of each edge sample to the nearest corner: a vertex where crease edges do not
+    continue straight on (not exactly two crease edges, or two meeting at more than
+    ``corner_angle_deg``). Silhouette-only edges (curved faces) use their own two ends. Image edges
+    near corners are blurred by the other edge, so the subpixel search leaves them out."""
+    fe = ev[feat]
+    inc: dict[int, list[int]] = {}
+    for k, (a, b) in enumerate(fe):
+        inc.setdefault(int(a), []).append(k)
+        inc.setdefault(int(b), []).append(k)
+    corners = []
+    cos_lim = np.cos(np.radians(corner_angle_deg))
+    for vtx, ks in inc.items():
+        if len(ks) != 2:
+            corners.append(vtx)
+            continue
+        d = []
+        for k in ks:
+            a, b = fe[k]
+            other = b if a == vtx else a
+            v = vertices[other] - vertices[vtx]
+            d.append(v / max(np.linalg.norm(v), 1e-12))
+        if -float(d[0] @ d[1]) < cos_lim:   # not continuing straight on
+            corners.append(vtx)
+    out = np.full(len(pts), np.inf)
+    if corners:
+        out, _ = cKDTree(vertices[np.asarray(corners)]).query(pts)
+    smooth = ~feat[rep]
+    if np.any(smooth):
+        a = vertices[ev[rep[smooth], 0]]
+        b = vertices[ev[rep[smooth], 1]]
+        p = pts[smooth]
+        out[smooth] = np.minimum(np.linalg.norm(p - a, axis=1), np.linalg.norm(p - b, axis=1))
+    return np.asarray(out, dtype=float)
+
+
+def _rotation_about(axis: np.ndarray, angle_rad: float, center: np.ndarray) -> np.ndarray:
+    R = Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle_rad).as_matrix()
+    return make_pose(R, center - R @ center)
+
+
+def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = None,
+                      center: np.ndarray | None = None, tol_mm: float | None = None,
+                      near_fraction: float = 0.85, orders: tuple[int, ...] = (2, 3, 4, 5, 6, 8),
+                      n_points: int = 2500, seed: int = 0
+                      ) -> tuple[list[Symmetry], np.ndarray | None]:
+    """Rotations that map ``mesh`` onto itself.
+
+    Candidate axes through the centre of mass (the principal axes of inertia and the given ``axes``,
+    e.g. the resting normals) are tested for orders n in ``orders``: surface samples rotated by 360/n
+    degrees must land on the surface (nearest neighbour in a denser sample), and samples of the sharp
+    edges on sharp edges. A rotation is ``exact`` when 99.5 % of both land within ``tol_mm`` and
+    "near" when at least ``near_fraction`` do (the outline maps but small features do not). An axis that also maps at 360/7 degrees and at
+    37 degrees is a continuous (round) symmetry, returned separately.
+
+    Returns
+    -------
+    symmetries : list of :class:`Symmetry` (identity excluded; each rotation listed once, the whole
+        group of an axis, e.g. 90, 180, 270 deg for a square block)
+    continuous_axis : (3,) unit axis in the obj frame, or None
+    """
+    rng = np.random.default_rng(seed)
+    c = np.asarray(mesh.center_mass if mesh.is_watertight else mesh.centroid, dtype=float) \
+        if center is None else np.asarray(center, dtype=float)
+    diag = float(np.linalg.norm(mesh.extents))
+    ref, _ = trimesh.sample.sample_surface(mesh, n_points * 12, seed=int(rng.integers(1 << 31)))
+    spacing = np.sqrt(mesh.area / (n_points * 12))
+    tol = float(tol_mm) if tol_mm is not None else max(2.5 * spacing, 0.004 * diag)
+    query = ref[rng.choice(len(ref), size=min(n_points, len(ref)), replace=False)]
+    tree = cKDTree(ref)
+    # the sharp edges separately: small features (holes, chamfers) are mostly edges, a small share of
+    # the surface but what an image shows; an exact symmetry must map the edges too
+    ev, _, feat = _edge_table(mesh, 1.0, 30.0)
+    ep, _, _ = _sample_edges(mesh.vertices, ev[feat], min(diag / 600.0, tol / 2))
+    tree_e = cKDTree(ep) if len(ep) else None
+    query_e = ep[rng.choice(len(ep), size=min(3 * n_points, len(ep)), replace=False)] if len(ep) else ep
+
+    cand = [np.asarray(a, dtype=float) for a in (axes or [])]
+    try:
+        cand += list(np.asarray(mesh.principal_inertia_vectors, dtype=float))
+    except Exception:  # noqa: BLE001 - degenerate meshes have no inertia; the given axes remain
+        pass
+    cand += [np.eye(3)[i] for i in range(3)]
+    uniq: list[np.ndarray] = []
+    for a in cand:
+        n = np.linalg.norm(a)
+        if n < 1e-9:
+            continue
+        a = a / n
+        if not any(abs(float(a @ b)) > 0.9995 for b in uniq):
+            uniq.append(a)
+
+    def frac(S):
+        """min(share of surface samples, share of edge samples) mapped onto the part by S."""
+        d, _ = tree.query(transform_points(S, query), distance_upper_bound=4 * tol)
+        f = float(np.mean(d <= tol))
+        if tree_e is not None:
+            de, _ = tree_e.query(transform_points(S, query_e), distance_upper_bound=4 * tol)
+            f = min(f, float(np.mean(de <= tol)))
+        return f
+
+    out: list[Symmetry] = []
+    continuous = None
+    for a in uniq:
+        f7 = frac(_rotation_about(a, 2 * np.pi / 7, c))
+        f37 = frac(_rotation_about(a, np.radians(37.0), c))
+        if min(f7, f37) >= 0.995:
+            continuous = a
+            continue
+        best_n = None
+        for n in sorted(orders, reverse=True):
+            f = frac(_rotation_about(a, 2 * np.pi / n, c))
+            if f >= near_fraction:
+                best_n = n
+                break
+        if best_n is None:
+            continue
+        for k in range(1, best_n):
+            S = _rotation_about(a, 2 * np.pi * k / best_n, c)
+            f = frac(S)
+            if f < near_fraction:
+                continue
+            if any(np.allclose(S, s.S, atol=1e-6 * max(1.0, diag)) for s in out):
+                continue
+            out.append(Symmetry(S=S, axis_obj=a, angle_deg=360.0 * k / best_n,
+                                matched_fraction=f, exact=f >= 0.995))
+    # close the set under composition (e.g. a block: 180 deg about x and y give 180 deg about z)
+    changed = True
+    while changed and len(out) < 48:
+        changed = False
+        for s1 in list(out):
+            for s2 in list(out):
+                S = s1.S @ s2.S
+                if np.allclose(S[:3, :3], np.eye(3), atol=1e-6):
+                    continue
+                if any(np.allclose(S, s.S, atol=1e-6 * max(1.0, diag)) for s in out):
+                    continue
+                rv = Rotation.from_matrix(S[:3, :3]).as_rotvec()
+                ang = float(np.linalg.norm(rv))
+                f = frac(S)
+                if f < near_fraction:
+                    continue
+                out.append(Symmetry(S=S, axis_obj=rv / ang, angle_deg=float(np.degrees(ang)),
+                                    matched_fraction=f, exact=f >= 0.995))
+                changed = True
+    return out, continuous
+
+
+def prepare_model(mesh: trimesh.Trimesh, name: str = "model", *, feature_angle_deg: float = 30.0,
+                  smooth_angle_deg: float = 2.0, sample_step_mm: float | None = None,
+                  max_resting_states: int = 6, min_resting_probability: float = 0.03,
+                  detect_symmetry: bool = True) -> PreparedModel:
+    """Prepare a CAD model (obj frame, mm) for edge matching. Costs up to ~1 s; cache the result.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh in the model's own CAD frame, mm
+    feature_angle_deg : dihedral angle above which an edge is a crease that shows as an image edge
+    smooth_angle_deg : edges between faces closer to coplanar than this are never drawn (not even as
+        silhouettes); above it and below ``feature_angle_deg`` they are silhouette-only (curved faces)
+    sample_step_mm : spacing of the edge samples; default diameter / 300 within [0.25, 4] mm
+    max_resting_states, min_resting_probability : keep the likeliest stable poses (at least one)
+    """
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"model {name!r}: expected a non-empty triangle mesh")
+    mesh = mesh.copy()
+    diameter = float(np.linalg.norm(mesh.extents))
+    step = float(sample_step_mm) if sample_step_mm else float(np.clip(diameter / 300.0, 0.25, 4.0))
+    ev, ef, feat = _edge_table(mesh, smooth_angle_deg, feature_angle_deg)
+    pts, rep, d = _sample_edges(mesh.vertices, ev, step)
+    corner_mm = _corner_distance(mesh.vertices, ev, feat, pts, rep)
+    center = np.asarray(mesh.center_mass if mesh.is_watertight else mesh.centroid, dtype=float)
+
+    states: list[RestingState] = []
+    for rp in resting_poses(mesh, max_poses=max_resting_states):
+        if states and rp.probability < min_resting_probability:
+            break
+        T = np.asarray(rp.T_plane_obj, dtype=float)
+        cm = transform_points(T, center[None])[0]
+        T = make_pose(None, [-cm[0], -cm[1], 0.0]) @ T   # centre of mass exactly above the origin
+        states.append(RestingState(T_rest_obj=T, probability=rp.probability, height_mm=rp.height_mm))
+
+    syms: list[Symmetry] = []
+    cont = None
+    if detect_symmetry:
+        normals = [inv(s.T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0]) for s in states]
+        syms, cont = detect_symmetries(mesh, axes=normals, center=center)
+    # resting states that are the same up to an exact symmetry of the part
+    marked: list[RestingState] = []
+    for j, s in enumerate(states):
+        same = -1
+        for i in range(j):
+            if marked[i].same_as >= 0:
+                continue
+            for S in [x.S for x in syms if x.exact]:
+                M = s.T_rest_obj @ S @ inv(states[i].T_rest_obj)
+                if M[2, 2] > 1 - 1e-6:
+                    same = i
+                    break
+            if same >= 0:
+                break
+        marked.append(RestingState(s.T_rest_obj, s.probability, s.height_mm, same))
+    return PreparedModel(
+        name=name, mesh=mesh, edge_vertices=ev, edge_faces=ef, edge_feature=feat,
+        samples_obj=pts, sample_edge=rep, sample_dir_obj=d, sample_corner_mm=corner_mm,
+        sample_step_mm=step,
+        resting_states=tuple(marked), symmetries=tuple(syms), continuous_axis_obj=cont,
+        center_obj=center, diameter_mm=diameter, feature_angle_deg=feature_angle_deg)
+
+
+def resting_pose(model: PreparedModel, state: int, x_mm: float, y_mm: float, theta_deg: float,
+                 height_mm: float = 0.0) -> np.ndarray:
+    """``T_table_obj`` of the part lying in resting state ``state`` with its centre of mass above
+    (x_mm, y_mm), turned by ``theta_deg`` about the table normal, raised by ``height_mm`` (parallels)."""
+    c, s = np.cos(np.radians(theta_deg)), np.sin(np.radians(theta_deg))
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return make_pose(Rz, [x_mm, y_mm, height_mm]) @ model.resting_states[state].T_rest_obj
+
+
+# --------------------------------------------------------------------------------------------------
+# visibility
+# --------------------------------------------------------------------------------------------------
+
+
+def _front_facing(model: PreparedModel, T_cam_obj: np.ndarray) -> np.ndarray:
+    """(F,) bool: face turned towards the camera (camera centre on the face's outer side)."""
+    cam_obj = inv(T_cam_obj)[:3, 3]
+    tri0 = model.mesh.vertices[model.mesh.faces[:, 0]]
+    return np.einsum("ij,ij->i", model.mesh.face_normals, cam_obj - tri0) > 0
+
+
+def visible_edge_samples(model: PreparedModel, T_cam_obj: np.ndarray, K: np.ndarray, dist,
+                         width: int, height: int, *,
+                         occluders: tuple[tuple[PreparedModel | trimesh.Trimesh, np.ndarray], ...] = (),
+                         occlusion_test: bool = True, max_buffer_px: int = 360,
+                         margin_px: float = 2.0, subset: np.ndarray | None = None) -> EdgeSamples:
+    """Edge samples of ``model`` at ``T_cam_obj`` that the camera sees.
+
+    A sample shows if its edge is a crease with a front-facing face or a silhouette (front face next to
+    a back face; smooth edges only as silhouettes), it projects inside the image, and (with
+    ``occlusion_test``) nothing is in front of it: a z-buffer of the model and of ``occluders``
+    (pairs of a mesh or prepared model and its ``T_cam_occ``) rendered at most ``max_buffer_px`` wide.
+    ``subset`` restricts the candidate samples (indices into ``model.samples_obj``).
+    """
+    front = _front_facing(model, T_cam_obj)
+    f0, f1 = model.edge_faces[:, 0], model.edge_faces[:, 1]
+    fr0 = front[f0]
+    fr1 = np.where(f1 >= 0, front[np.maximum(f1, 0)], ~fr0)
+    sil_edge = fr0 != fr1
+    show_edge = sil_edge | (model.edge_feature & (fr0 | fr1))
+    idx = np.arange(len(model.samples_obj)) if subset is None else np.asarray(subset)
+    idx = idx[show_edge[model.sample_edge[idx]]]
+    P_obj = model.samples_obj[idx]
+    P_cam = transform_points(T_cam_obj, P_obj)
+    uv = project_points_px(P_cam, K, dist)
+    # image normal from the projected edge direction
+    D_cam = model.sample_dir_obj[idx] @ T_cam_obj[:3, :3].T
+    eps = np.maximum(0.05 * model.sample_step_mm, 1e-3)
+    uv2 = project_points_px(P_cam + D_cam * eps, K, dist)
+    t = uv2 - uv
+    tn = np.linalg.norm(t, axis=1)
+    inside = (np.isfinite(uv).all(1) & (uv[:, 0] >= margin_px) & (uv[:, 1] >= margin_px)
+              & (uv[:, 0] <= width - 1 - margin_px) & (uv[:, 1] <= height - 1 - margin_px)
+              & (tn > 1e-9))
+    idx, P_obj, P_cam, uv, t, tn = idx[inside], P_obj[inside], P_cam[inside], uv[inside], t[inside], tn[inside]
+    n_front = len(idx)
+    normal = np.stack([-t[:, 1], t[:, 0]], axis=1) / tn[:, None]
+    sil = sil_edge[model.sample_edge[idx]]
+    if occlusion_test and len(idx):
+        keep = _unoccluded(model, T_cam_obj, K, width, height, idx, P_cam, occluders, max_buffer_px)
+        idx, P_obj, P_cam, uv, normal, sil = idx[keep], P_obj[keep], P_cam[keep], uv[keep], normal[keep], sil[keep]
+    return EdgeSamples(index=idx, points_obj=P_obj, points_cam=P_cam, uv_px=uv, normal_uv=normal,
+                       silhouette=sil, n_front=n_front)
+
+
+def _unoccluded(model, T_cam_obj, K, width, height, idx, P_cam, occluders, max_buffer_px):
+    # pinhole pixel positions of the samples (the buffer has no distortion)
+    u = K[0, 0] * P_cam[:, 0] / P_cam[:, 2] + K[0, 2]
+    v = K[1, 1] * P_cam[:, 1] / P_cam[:, 2] + K[1, 2]
+    pad = 4.0
+    x0, x1 = max(0.0, u.min() - pad), min(float(width - 1), u.max() + pad)
+    y0, y1 = max(0.0, v.min() - pad), min(float(height - 1), v.max() + pad)
+    s = min(1.0, max_buffer_px / max(x1 - x0, y1 - y0, 1.0))
+    W = int(np.ceil((x1 - x0) * s)) + 2
+    H = int(np.ceil((y1 - y0) * s)) + 2
+    Kb = np.array([[K[0, 0] * s, 0.0, (K[0, 2] - x0) * s], [0.0, K[1, 1] * s, (K[1, 2] - y0) * s],
+                   [0.0, 0.0, 1.0]])
+    meshes = [(transform_points(T_cam_obj, model.mesh.vertices), model.mesh.faces)]
+    for occ, T_cam_occ in occluders:
+        m = occ.mesh if isinstance(occ, PreparedModel) else occ
+        meshes.append((transform_points(T_cam_occ, m.vertices), m.faces))
+    depth, fid = render_depth(meshes, Kb, W, H)
+    ub = np.clip(np.rint((u - x0) * s).astype(int), 0, W - 1)
+    vb = np.clip(np.rint((v - y0) * s).astype(int), 0, H - 1)
+    z = P_cam[:, 2]
+    # a sample is hidden when a surface is clearly nearer at its pixel (tolerance: a few buffer
+    # pixels' footprint, for faces seen at a grazing angle, plus 0.2 mm)
+    foot = z / (K[0, 0] * s)
+    tol = 4.0 * foot + 0.2
+    best = np.zeros(len(z), dtype=bool)
+    own = model.edge_faces[model.sample_edge[idx]]
+    # the pixel and its 4-neighbours: visible if any of them shows the sample's own faces or
+    # something not nearer (edges lie on pixel boundaries of the buffer)
+    for du, dv in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)):
+        uu = np.clip(ub + du, 0, W - 1)
+        vv = np.clip(vb + dv, 0, H - 1)
+        d = depth[vv, uu]
+        f = fid[vv, uu]
+        is_own = (f >= 0) & (f < (1 << 32)) & ((f == own[:, 0]) | (f == own[:, 1]))
+        best |= is_own | (d >= z - tol)
+    return best

@@ -1,0 +1,227 @@
+"""One setup image -> table pose -> object poses on the table: the stages in order.
+
+``localize`` runs the stages (table markers, then each object), hands each finished stage to an
+optional ``on_stage`` callback (numbers, time, picture) and returns a :class:`LocalizeResult` whose
+objects carry ``T_table_obj = inv(T_cam_table) @ T_cam_obj``. It has no database or web state, so the
+CLI, the service's worker and the tests call the same function.
+
+Clamps and vises are located before workpieces so that their fitted meshes can hide the workpiece
+edges they cover (occluders), as in a real vise setup.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import cv2
+import numpy as np
+import trimesh
+
+from app.geometry.model_edges import PreparedModel, prepare_model
+from app.vision import object_pose
+from app.vision.fiducials import draw_table, locate_table
+
+# BGR colours per object, in order (workpiece first): distinct on grey metal.
+COLOURS = [(0, 220, 0), (255, 160, 0), (0, 200, 255), (255, 0, 255), (255, 255, 0), (80, 80, 255)]
+
+
+@dataclass(eq=False)
+class Candidate:
+    """A library model that may be on the table (mesh in its own CAD frame, mm)."""
+
+    name: str
+    mesh: trimesh.Trimesh
+    kind: str = "workpiece"                  # workpiece | clamp
+    model_id: int | None = None
+    revision: int | None = None
+    T_obj_datum: np.ndarray | None = None
+    prepared: PreparedModel | None = None    # filled lazily (prepare_model costs ~1 s; callers cache)
+
+    def prepare(self) -> PreparedModel:
+        if self.prepared is None:
+            self.prepared = prepare_model(self.mesh, self.name)
+        return self.prepared
+
+
+@dataclass
+class Stage:
+    """One finished stage: its numbers, its time and its picture."""
+
+    name: str
+    ok: bool
+    ms: float
+    message: str
+    data: dict = field(default_factory=dict)
+    image: np.ndarray | None = None
+
+
+@dataclass
+class LocalizeResult:
+    ok: bool
+    reason: str
+    table: dict | None
+    objects: list[dict]
+    not_found: list[dict]
+    stages: list[Stage]
+    overlay: np.ndarray
+    timings_ms: dict
+
+    def to_dict(self) -> dict:
+        return {"ok": self.ok, "reason": self.reason, "table": self.table, "objects": self.objects,
+                "not_found": self.not_found, "timings_ms": self.timings_ms,
+                "stages": [{"name": s.name, "ok": s.ok, "ms": round(s.ms, 1), "message": s.message}
+                           for s in self.stages]}
+
+
+def _object_entry(cand: Candidate, pose: object_pose.ObjectPose, colour) -> dict:
+    d = pose.to_dict()
+    d.update(name=cand.name, kind=cand.kind, model_id=cand.model_id, revision=cand.revision,
+             colour_bgr=list(colour),
+             T_obj_datum=None if cand.T_obj_datum is None else np.asarray(cand.T_obj_datum).tolist())
+    return d
+
+
+def draw_overlay(image: np.ndarray, K, dist, table_result, located: list[tuple[Candidate, Any]]) -> np.ndarray:
+    """The operator's picture: markers (used green, rejected red) and each object's fitted edges."""
+    out = draw_table(image, table_result) if table_result is not None else (
+        image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+    T_cam_table = getattr(table_result, "T_cam_table", None)
+    for i, (cand, pose) in enumerate(located):
+        out = object_pose.draw_object(out, K, dist, pose, cand.prepare(), color=COLOURS[i % len(COLOURS)],
+                                      T_cam_table=T_cam_table)
+    return out
+
+
+def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: dict,
+             candidates: list[Candidate], *, recognise: bool = False,
+             on_stage: Callable[[Stage], None] | None = None, min_score: float = 0.5,
+             min_margin: float = 0.1, height_offsets_mm=(0.0,)) -> LocalizeResult:
+    """Locate the table and the candidates in one image.
+
+    Parameters
+    ----------
+    image : (H, W, 3) BGR or (H, W) grey uint8, as taken (distorted)
+    K : (3, 3) camera matrix, px; dist : (5,) OpenCV distortion
+    table_layout : fiducial layout of the table (DESIGN format)
+    candidates : models to locate (``recognise=False``: each is expected) or to choose from
+        (``recognise=True``: those recognised with a margin are accepted)
+    on_stage : called with each finished :class:`Stage`
+    """
+    K = np.asarray(K, float)
+    dist = np.asarray(dist, float).ravel()
+    stages: list[Stage] = []
+    t_all = time.perf_counter()
+
+    def done(stage: Stage) -> None:
+        stages.append(stage)
+        if on_stage is not None:
+            on_stage(stage)
+
+    # --- table
+    t = time.perf_counter()
+    table = locate_table(image, K, dist, table_layout)
+    table_ms = (time.perf_counter() - t) * 1e3
+    table_pic = draw_table(image, table)
+    if not table:
+        done(Stage("table markers", False, table_ms, table.reason, table.to_dict(), table_pic))
+        return LocalizeResult(False, table.reason, table.to_dict(), [], [], stages, table_pic,
+                              {"table": table_ms, "total": (time.perf_counter() - t_all) * 1e3})
+    tdict = table.to_dict()
+    done(Stage("table markers", True, table_ms,
+               f"table located from markers {', '.join(map(str, table.ids_used))}; RMS {table.rms_px:.2f} px",
+               tdict, table_pic))
+    T_cam_table = table.T_cam_table
+
+    # --- objects: clamps first (they occlude the workpiece), then workpieces
+    ordered = sorted(candidates, key=lambda c: 0 if c.kind == "clamp" else 1)
+    located: list[tuple[Candidate, Any]] = []
+    objects, not_found = [], []
+    if recognise and ordered:
+        t = time.perf_counter()
+        prepared = [c.prepare() for c in ordered]
+        rec = object_pose.recognise(image, K, dist, T_cam_table, prepared, min_score=max(min_score, 0.6),
+                                    min_margin=min_margin, height_offsets_mm=height_offsets_mm)
+        by_name = {c.name: c for c in ordered}
+        for pose in rec.accepted:
+            located.append((by_name[pose.model_name], pose))
+        msg = ("recognised " + ", ".join(p.model_name for p in rec.accepted)) if rec else rec.reason
+        done(Stage("recognition", bool(rec), (time.perf_counter() - t) * 1e3, msg, rec.to_dict(),
+                   draw_overlay(image, K, dist, table, located)))
+        if not rec:
+            not_found.append({"name": None, "reason": rec.reason, "ranked": list(rec.ranked)})
+    else:
+        for cand in ordered:
+            t = time.perf_counter()
+            occluders = [(c.prepare(), p.T_table_obj) for c, p in located if isinstance(p, object_pose.ObjectPose)]
+            pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(), occluder_models=occluders,
+                                             min_score=min_score, min_margin=min_margin,
+                                             height_offsets_mm=height_offsets_mm)
+            ms = (time.perf_counter() - t) * 1e3
+            if pose:
+                located.append((cand, pose))
+                s = pose.sigma
+                msg = (f"{cand.name}: score {pose.score:.0%}, x {pose.T_table_obj[0, 3]:.2f} ± {s.get('x_mm', float('nan')):.2f} mm, "
+                       f"y {pose.T_table_obj[1, 3]:.2f} ± {s.get('y_mm', float('nan')):.2f} mm")
+                if pose.datum_ambiguous:
+                    msg += f"; {pose.datum_note}"
+            else:
+                not_found.append({"name": cand.name, "model_id": cand.model_id, "reason": pose.reason,
+                                  "kind": pose.kind})
+                msg = f"{cand.name}: {pose.reason}"
+            done(Stage(f"locate {cand.name}", bool(pose), ms, msg, pose.to_dict(),
+                       draw_overlay(image, K, dist, table, [(cand, pose)])))
+    for i, (cand, pose) in enumerate(located):
+        objects.append(_object_entry(cand, pose, COLOURS[i % len(COLOURS)]))
+    overlay = draw_overlay(image, K, dist, table, located)
+
+    workpieces = [o for o in objects if o["kind"] == "workpiece"]
+    if not objects:
+        reason = not_found[0]["reason"] if not_found else "no candidate models to look for"
+        ok = False
+    elif not recognise and not workpieces and any(c.kind == "workpiece" for c in candidates):
+        reason, ok = "; ".join(f"{n['name']}: {n['reason']}" for n in not_found), False
+    else:
+        ok = True
+        reason = ""
+        if not_found:
+            names = ", ".join(str(n["name"]) for n in not_found if n.get("name"))
+            reason = f"{len(objects)} of {len(objects) + len(not_found)} objects located; {names} not found"
+    return LocalizeResult(ok, reason, tdict, objects, not_found, stages, overlay,
+                          {"table": table_ms, "total": (time.perf_counter() - t_all) * 1e3})
+
+
+def draw_model_edges(image: np.ndarray, K, dist, T_cam_obj: np.ndarray, model: PreparedModel, colour,
+                     label: str = "") -> np.ndarray:
+    """Draw a model's visible edges at ``T_cam_obj`` (hidden lines removed) with a label."""
+    from app.geometry.model_edges import visible_edge_samples
+
+    out = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    H, W = out.shape[:2]
+    es = visible_edge_samples(model, np.asarray(T_cam_obj, float), np.asarray(K, float),
+                              np.asarray(dist, float), W, H, occlusion_test=True)
+    for u, v in es.uv_px:
+        cv2.circle(out, (int(round(u * 4)), int(round(v * 4))), 4, colour, -1, lineType=cv2.LINE_AA, shift=2)
+    if label and len(es.uv_px):
+        u0, v0 = es.uv_px.min(axis=0)
+        cv2.putText(out, label, (int(u0), max(15, int(v0) - 8)), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1,
+                    cv2.LINE_AA)
+    return out
+
+
+def draw_pose_overlay(base: np.ndarray, K, dist, result: dict, candidates: dict) -> np.ndarray:
+    """Overlay of a (possibly operator-adjusted) result dict on ``base`` (e.g. the table-stage picture).
+
+    candidates : {(model_id, revision): Candidate}
+    """
+    out = base
+    for i, o in enumerate(result.get("objects", [])):
+        cand = candidates.get((o.get("model_id"), o.get("revision")))
+        if cand is None:
+            continue
+        T = np.asarray(o["T_table_obj"])
+        label = f"{o['name']} x{T[0, 3]:.2f} y{T[1, 3]:.2f}" + (" (adjusted)" if o.get("adjusted") else "")
+        out = draw_model_edges(out, K, dist, o["T_cam_obj"], cand.prepare(), tuple(o.get("colour_bgr") or COLOURS[i]),
+                               label)
+    return out

@@ -1,0 +1,1387 @@
+"""Pose of a CAD part on the machine table from one image, without markers on the part.
+
+Given the table's pose ``T_cam_table`` (from its fiducials), the intrinsics and a prepared model
+(:func:`app.geometry.model_edges.prepare_model`), :func:`locate_object` finds ``T_cam_obj`` and
+``T_table_obj = inv(T_cam_table) @ T_cam_obj`` in four stages:
+
+1. **search** (wide, several starts): the part lies on the table, so a pose is a resting state, a
+   position (x, y) and a rotation theta about the table normal. Every image edge pixel is cast onto
+   the horizontal planes at the heights of the model's horizontal edges (exact for any perspective),
+   and a generalised Hough transform (Ballard 1981, "Generalizing the Hough transform to detect
+   arbitrary shapes", Pattern Recognition 13(2)) lets each pair (image edge, model edge sample) with
+   matching direction vote for (x, y, theta). The strongest distinct peaks are the starts.
+2. **planar fit**: each start is aligned in (x, y, theta) by iterated point-to-line matching against
+   the nearest image edge pixel of compatible direction (oriented chamfer ICP), and scored by the
+   share of the model's visible edges with an image edge nearby.
+3. **refinement** of the best starts in full 6 DoF (``scipy.optimize.least_squares``, soft-L1 loss
+   against occlusion and shadow edges): each visible model edge sample (hidden lines removed with a
+   z-buffer of the part and the known occluders) looks along its image normal for the image edge and
+   takes its position at the 50 % intensity crossing of the gamma-decoded profile.
+4. **verification**: share of the visible model edges supported by image edges, margin to the best
+   different pose, the part's symmetries (equivalent poses; a datum chosen by features only when the
+   features decide it), uncertainty from the least-squares covariance ``(J^T J)^-1 s^2``.
+
+A fit that is not good enough, or not clearly better than a different pose, is returned as an
+:class:`ObjectFailure` with the reason; it is never returned as a pose.
+
+Conventions: DESIGN.md (``T_a_b``, mm, degrees at the boundary); pixels are OpenCV's (u right, v down,
+centres at integers); ``image`` is 8-bit grey (a colour image is converted).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy import fft as sfft
+from scipy.optimize import least_squares
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from app.geometry.model_edges import PreparedModel, project_points_px, render_depth, visible_edge_samples
+from app.geometry.transforms import check_pose, inv, make_pose, transform_points
+
+__all__ = [
+    "EdgeImage",
+    "ObjectPose",
+    "ObjectFailure",
+    "Recognition",
+    "prepare_image",
+    "mask_known_edges",
+    "locate_object",
+    "search_poses",
+    "recognise",
+    "draw_object",
+]
+
+
+# --------------------------------------------------------------------------------------------------
+# results
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectPose:
+    """A located part. Poses 4x4 (mm); ``sigma`` is 1-sigma of ``T_table_obj``: keys ``x_mm, y_mm,
+    z_mm`` (the obj frame's origin, table axes) and ``rx_deg, ry_deg, rz_deg`` (small rotations about
+    the table axes); NaN for a rotation that the part's round symmetry leaves undetermined.
+
+    score : verification score in [0, 1] (share of visible model edge samples supported by an image
+        edge within ``support_px`` after the fit)
+    inlier_edge_fraction : same share counted with the fit's robust inliers (|residual| < 3 scale)
+    residual_px : RMS of the inlier residuals along the edge normals
+    visible_fraction : share of the model's edges in view that the given occluders do not hide
+    supported_edge_px : length (px) of the model's visible edges supported by image edges
+    unexplained_fraction : share of the image edge pixels inside the part's outline (3 px in) that no
+        visible model edge explains (a smaller model fitted into a bigger part leaves many)
+    margin : score minus the score of the best different (non-equivalent) pose found, or NaN if none
+    distinctiveness : least drop of the score when the pose is moved by 4 px (x, y) or turned
+    tilt_deg : angle between the part's resting normal and the table normal after the 6-DoF fit;
+        ``tilt_sigma_deg`` its 1-sigma; flag "tilt" when it exceeds both ``max_tilt_deg`` and 3 sigma.
+        ``T_table_obj`` is the flat fit; the free fit is ``T_table_obj_6dof``
+    equivalent_poses : ``T_table_obj @ S`` for every symmetry S of the part (same look, other datum)
+    datum_note : how the datum (which of the equivalent poses) was chosen, or why it could not be
+    uncertainty_ok : every sigma within the tolerances given to :func:`locate_object`
+    flags : warnings ("tilt", "datum_ambiguous", "uncertainty", "few_edges")
+    """
+
+    model_name: str
+    T_cam_obj: np.ndarray
+    T_table_obj: np.ndarray
+    resting_state: int
+    score: float
+    inlier_edge_fraction: float
+    residual_px: float
+    visible_fraction: float
+    supported_edge_px: float
+    unexplained_fraction: float
+    n_edge_samples: int
+    sigma: dict
+    uncertainty_ok: bool
+    T_table_obj_6dof: np.ndarray
+    tilt_deg: float
+    tilt_sigma_deg: float
+    height_offset_mm: float
+    margin: float
+    runner_up_score: float
+    distinctiveness: float
+    equivalent_poses: tuple
+    datum_ambiguous: bool
+    datum_note: str
+    flags: tuple
+    timings_ms: dict
+
+    def __bool__(self) -> bool:
+        return True
+
+    def to_dict(self) -> dict:
+        return {
+            "ok": True,
+            "model": self.model_name,
+            "T_cam_obj": self.T_cam_obj.tolist(),
+            "T_table_obj": self.T_table_obj.tolist(),
+            "resting_state": self.resting_state,
+            "score": self.score,
+            "inlier_edge_fraction": self.inlier_edge_fraction,
+            "residual_px": self.residual_px,
+            "visible_fraction": self.visible_fraction,
+            "supported_edge_px": self.supported_edge_px,
+            "unexplained_fraction": self.unexplained_fraction,
+            "n_edge_samples": self.n_edge_samples,
+            "sigma": {k: (None if not np.isfinite(v) else float(v)) for k, v in self.sigma.items()},
+            "uncertainty_ok": self.uncertainty_ok,
+            "T_table_obj_6dof": self.T_table_obj_6dof.tolist(),
+            "tilt_deg": self.tilt_deg,
+            "tilt_sigma_deg": None if not np.isfinite(self.tilt_sigma_deg) else self.tilt_sigma_deg,
+            "height_offset_mm": self.height_offset_mm,
+            "margin": None if not np.isfinite(self.margin) else self.margin,
+            "runner_up_score": None if not np.isfinite(self.runner_up_score) else self.runner_up_score,
+            "distinctiveness": self.distinctiveness,
+            "equivalent_poses": [T.tolist() for T in self.equivalent_poses],
+            "datum_ambiguous": self.datum_ambiguous,
+            "datum_note": self.datum_note,
+            "flags": list(self.flags),
+            "timings_ms": dict(self.timings_ms),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectFailure:
+    """A part that was not located; ``reason`` is the sentence for the operator.
+
+    kind : "not_found" | "ambiguous" | "bad_input"
+    candidates : best hypotheses seen, each ``{"T_table_obj": 4x4 list, "score": float}``
+    """
+
+    model_name: str
+    kind: str
+    reason: str
+    best_score: float
+    candidates: tuple
+    timings_ms: dict
+
+    def __bool__(self) -> bool:
+        return False
+
+    def to_dict(self) -> dict:
+        return {"ok": False, "model": self.model_name, "kind": self.kind, "reason": self.reason,
+                "best_score": self.best_score, "candidates": list(self.candidates),
+                "timings_ms": dict(self.timings_ms)}
+
+
+@dataclass(frozen=True, eq=False)
+class Recognition:
+    """Outcome of :func:`recognise`.
+
+    accepted : located parts that passed (score >= min_score, margin >= min_margin), best first
+    ranked : every candidate as ``{"model", "score", "ok", "reason"}``, best first
+    reason : "" when something was accepted, else why nothing was ("not recognised: ...")
+    """
+
+    accepted: tuple
+    ranked: tuple
+    reason: str
+    timings_ms: dict
+
+    @property
+    def best(self) -> ObjectPose | None:
+        return self.accepted[0] if self.accepted else None
+
+    def __bool__(self) -> bool:
+        return bool(self.accepted)
+
+    def to_dict(self) -> dict:
+        return {"ok": bool(self.accepted), "accepted": [a.to_dict() for a in self.accepted],
+                "ranked": list(self.ranked), "reason": self.reason, "timings_ms": dict(self.timings_ms)}
+
+
+# --------------------------------------------------------------------------------------------------
+# image preparation
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class EdgeImage:
+    """An image prepared once for all candidate models.
+
+    linear : (H, W) float32 intensity with the camera's gamma undone (0..1)
+    edges : (H, W) uint8 Canny edge map
+    dist_px : (H, W) float32 distance to the nearest edge pixel
+    nearest : (H, W) int32 index into ``edge_uv`` of that pixel
+    edge_uv : (E, 2) float edge pixel positions (u, v); ``edge_angle`` (E,) gradient direction, rad
+    """
+
+    width: int
+    height: int
+    linear: np.ndarray
+    edges: np.ndarray
+    dist_px: np.ndarray
+    nearest: np.ndarray
+    edge_uv: np.ndarray
+    edge_angle: np.ndarray
+    edge_mag: np.ndarray
+    noise_linear: float
+    cache: dict = field(default_factory=dict)   # per-image intermediate results shared by models
+
+
+def prepare_image(image: np.ndarray, *, gamma: float = 2.2, canny_low: float | None = None,
+                  canny_high: float | None = None, smooth_sigma_px: float = 1.0) -> EdgeImage:
+    """Gamma-decode the image and extract its edges (Canny), their directions and distance map.
+
+    ``canny_low``/``canny_high`` default to 2.5x / 6x the noise of the Sobel magnitude, estimated
+    from the image (median absolute deviation), with floors of 8 and 20 grey levels.
+    """
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.dtype != np.uint8:
+        raise ValueError(f"image must be 8-bit grey or BGR, got dtype {img.dtype}")
+    H, W = img.shape
+    lin = ((img.astype(np.float32) / 255.0) ** float(gamma)).astype(np.float32)
+    sm = cv2.GaussianBlur(img, (0, 0), smooth_sigma_px) if smooth_sigma_px > 0 else img
+    smf = sm.astype(np.float32)
+    gx = cv2.Sobel(smf, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(smf, cv2.CV_32F, 0, 1, ksize=3)
+    mag = np.hypot(gx, gy)
+    # noise: MAD of the difference between the image and its blur (flat areas dominate)
+    resid = img.astype(np.float32) - smf
+    noise = float(1.4826 * np.median(np.abs(resid - np.median(resid)))) + 1e-3
+    sob_noise = noise * 2.0
+    lo = canny_low if canny_low is not None else max(8.0, 2.5 * sob_noise)
+    hi = canny_high if canny_high is not None else max(20.0, 6.0 * sob_noise)
+    gx16 = np.clip(np.round(gx), -32767, 32767).astype(np.int16)
+    gy16 = np.clip(np.round(gy), -32767, 32767).astype(np.int16)
+    edges = cv2.Canny(gx16, gy16, lo, hi, L2gradient=True)
+    noise_lin = float(noise / 255.0 * gamma * 0.5 ** (gamma - 1))  # slope of the decode at mid-grey
+    return _edge_image(lin, edges, np.arctan2(gy, gx), mag, noise_lin)
+
+
+def _edge_image(lin, edges, angle, mag, noise_lin) -> EdgeImage:
+    H, W = edges.shape
+    dist_px, labels = cv2.distanceTransformWithLabels(
+        np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, 5,
+        labelType=cv2.DIST_LABEL_PIXEL)
+    vv, uu = np.nonzero(edges)
+    edge_uv = np.stack([uu, vv], axis=1).astype(float)
+    nearest = (labels.astype(np.int32) - 1) if len(uu) else np.zeros_like(labels, dtype=np.int32)
+    full_angle = angle if angle.shape == edges.shape else None
+    return EdgeImage(width=W, height=H, linear=lin, edges=edges, dist_px=dist_px.astype(np.float32),
+                     nearest=nearest, edge_uv=edge_uv,
+                     edge_angle=full_angle[vv, uu] if full_angle is not None else angle,
+                     edge_mag=mag[vv, uu] if mag.shape == edges.shape else mag, noise_linear=noise_lin,
+                     cache={"angle_full": angle, "mag_full": mag})
+
+
+def mask_known_edges(eimg: EdgeImage, known: list[tuple[PreparedModel, np.ndarray]], K, dist,
+                     width_px: float = 1.5) -> EdgeImage:
+    """A copy of ``eimg`` without the edge pixels that known geometry explains.
+
+    ``known`` holds pairs (prepared model, ``T_cam_model``), typically the table itself (its border,
+    T-slots and marker-free structure) at ``T_cam_table``: corners and steps of the table otherwise
+    look like small workpieces to the search. Edge pixels within ``width_px`` of a visible edge of a
+    known model are removed; the grey image used for the subpixel fit is unchanged.
+    """
+    K = np.asarray(K, float)
+    dist = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
+    mask = np.zeros(eimg.edges.shape, np.uint8)
+    for model, T_cam_model in known:
+        es = visible_edge_samples(model, np.asarray(T_cam_model, float), K, dist, eimg.width, eimg.height,
+                                  max_buffer_px=1200)
+        step = max(1, int(np.ceil(len(es.uv_px) / 400000)))
+        for u, v in np.rint(es.uv_px[::step] * 4).astype(np.int64):
+            cv2.circle(mask, (int(u), int(v)), int(round(width_px * 4)), 255, -1, shift=2)
+    edges = np.where(mask > 0, 0, eimg.edges).astype(np.uint8)
+    return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
+                       eimg.noise_linear)
+
+
+# --------------------------------------------------------------------------------------------------
+# pose parametrisation
+# --------------------------------------------------------------------------------------------------
+
+
+def _perturb(T_table_obj: np.ndarray, c_table: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``T_table_obj`` moved by p = (dx, dy, dz mm, rotation vector rad) about the point c_table."""
+    R = Rotation.from_rotvec(p[3:6]).as_matrix()
+    T = make_pose(R, c_table + p[:3] - R @ c_table)
+    return T @ T_table_obj
+
+
+def _perturb3(T_table_obj: np.ndarray, c_table: np.ndarray, q: np.ndarray) -> np.ndarray:
+    return _perturb(T_table_obj, c_table, np.array([q[0], q[1], 0.0, 0.0, 0.0, q[2]]))
+
+
+# --------------------------------------------------------------------------------------------------
+# stage 1: generalised Hough transform on the table planes
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Hyp:
+    state: int
+    T_table_obj: np.ndarray
+    votes: float = 0.0
+    score: float = 0.0
+    height_mm: float = 0.0
+    refined: dict | None = None
+
+
+def _edge_rays_table(eimg: EdgeImage, K, dist, T_table_cam, max_edges: int, rng):
+    """Subsampled edge pixels as rays in the table frame, plus rays one px along the edge."""
+    n = len(eimg.edge_uv)
+    if n == 0:
+        return None
+    idx = np.arange(n) if n <= max_edges else np.sort(rng.choice(n, max_edges, replace=False))
+    uv = eimg.edge_uv[idx]
+    ang = eimg.edge_angle[idx]
+    tang = np.stack([-np.sin(ang), np.cos(ang)], axis=1)
+    both = np.vstack([uv, uv + 2.0 * tang]).reshape(-1, 1, 2)
+    xy = cv2.undistortPoints(both, K, np.asarray(dist, float)).reshape(-1, 2)
+    rays = np.column_stack([xy, np.ones(len(xy))]) @ T_table_cam[:3, :3].T
+    return idx, rays[: len(idx)], rays[len(idx):]
+
+
+def _levels(m_z: np.ndarray, max_levels: int = 6, gap_mm: float = 0.5) -> list[np.ndarray]:
+    """Group template points by height (clusters ``gap_mm`` apart; quantised when there are many)."""
+    order = np.argsort(m_z)
+    levels, start = [], 0
+    for k in range(1, len(order) + 1):
+        if k == len(order) or m_z[order[k]] - m_z[order[k - 1]] > gap_mm:
+            levels.append(order[start:k])
+            start = k
+    if len(levels) > max_levels:
+        q = np.linspace(m_z.min(), m_z.max() + 1e-6, max_levels + 1)
+        lab = np.clip(np.searchsorted(q, m_z, side="right") - 1, 0, max_levels - 1)
+        levels = [np.nonzero(lab == i)[0] for i in range(max_levels) if np.any(lab == i)]
+    return levels
+
+
+def _plane_edges(rays, C, z: float, extent_xy, b: float):
+    """Image edge pixels cast onto the horizontal plane z (table frame) on a grid of b mm: grid size
+    (nx, ny), cell indices (ix, iy), edge direction on the plane (rad, mod pi), inside-grid mask."""
+    _, r0, r1 = rays
+    x0, x1, y0, y1 = extent_xy
+    nx = int(np.ceil((x1 - x0) / b)) + 1
+    ny = int(np.ceil((y1 - y0) / b)) + 1
+    lam0 = (z - C[2]) / r0[:, 2]
+    lam1 = (z - C[2]) / r1[:, 2]
+    ok = (lam0 > 0) & (lam1 > 0)
+    p0 = C[:2] + lam0[ok, None] * r0[ok, :2]
+    p1 = C[:2] + lam1[ok, None] * r1[ok, :2]
+    dd = p1 - p0
+    e_phi = np.mod(np.arctan2(dd[:, 1], dd[:, 0]), np.pi)
+    ix = np.floor((p0[:, 0] - x0) / b + 0.5).astype(np.int64)
+    iy = np.floor((p0[:, 1] - y0) / b + 0.5).astype(np.int64)
+    inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    return nx, ny, ix, iy, e_phi, inside
+
+
+def _support_maps(rays, C, z: float, extent_xy, b: float, n_channels: int, tau_bins: float):
+    """Edge support on the plane z: (n_channels, ny, nx) in [0, 1], 1 on an edge of that direction."""
+    nx, ny, ix, iy, e_phi, inside = _plane_edges(rays, C, z, extent_xy, b)
+    ch_w = np.pi / n_channels
+    sup = np.zeros((n_channels, ny, nx), np.float32)
+    for k in range(n_channels):
+        dphi = np.abs(np.mod(e_phi - (k + 0.5) * ch_w + np.pi / 2, np.pi) - np.pi / 2)
+        m = inside & (dphi <= ch_w)          # channel k holds edges within one channel width
+        img = np.full((ny, nx), 255, np.uint8)
+        img[iy[m], ix[m]] = 0
+        dt = cv2.distanceTransform(img, cv2.DIST_L2, 3)
+        sup[k] = np.clip(1.0 - dt / tau_bins, 0.0, 1.0)
+    return sup
+
+
+def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, extent_xy,
+                  n_peaks: int, *, px_mm: float, image_score, max_template: int = 400, n_coarse: int = 40,
+                  cache: dict | None = None) -> list[_Hyp]:
+    """Exhaustive oriented chamfer matching of the model's horizontal edges on the table planes.
+
+    The image's edge pixels are cast onto each horizontal plane that carries model edges (height
+    levels of the resting state); on such a plane the model's edges form a rigid template, so the
+    score of (x, y, theta) is a correlation of the template with the plane's edge support (truncated
+    distance transform, one map per edge direction). Coarse: every (x, y, theta) on a grid of about
+    diameter/18 (correlations summed in the frequency domain, one inverse FFT per theta); fine: the
+    best ``n_coarse`` cells re-scored twice on half-step grids in the image itself (``image_score``:
+    exact perspective, full-resolution edges and their directions). ``px_mm`` is the plane footprint
+    of one image pixel. Returns the best distinct (x, y, theta) as starts.
+    """
+    cache = {} if cache is None else cache
+    rs = model.resting_states[state]
+    P = transform_points(rs.T_rest_obj, model.samples_obj)
+    D = model.sample_dir_obj @ rs.T_rest_obj[:3, :3].T
+    N = model.mesh.face_normals @ rs.T_rest_obj[:3, :3].T
+    cand = np.nonzero(np.abs(D[:, 2]) < 0.3)[0]
+    if len(cand) == 0:
+        return []
+    # edges of upward faces show from any side and count fully; others (bottom outline, edges
+    # between side faces) half: which of those show depends on the unknown rotation
+    ef = model.edge_faces[model.sample_edge[cand]]
+    up = (N[ef[:, 0], 2] > 0.3) | ((ef[:, 1] >= 0) & (N[np.maximum(ef[:, 1], 0), 2] > 0.3))
+    wts_all = np.where(up, 1.0, 0.5)
+    diam = model.diameter_mm
+    x0, x1, y0, y1 = extent_xy
+    round_part = (model.continuous_axis_obj is not None and
+                  abs((rs.T_rest_obj[:3, :3] @ model.continuous_axis_obj)[2]) > 0.999)
+
+    def template(spacing_mm, max_n):
+        step = max(1, int(round(spacing_mm / model.sample_step_mm)))
+        sel = cand[::step]
+        w = wts_all[::step]
+        if len(sel) > max_n:
+            k = np.linspace(0, len(sel) - 1, max_n).astype(np.int64)
+            sel, w = sel[k], w[k]
+        return P[sel, :2], np.arctan2(D[sel, 1], D[sel, 0]), P[sel, 2] + height_mm, w, sel
+
+    # ---- coarse: correlation per theta
+    b = float(np.clip(diam / 18.0, 1.5, 16.0))
+    b = max(b, max(x1 - x0, y1 - y0) / 250.0)
+    nx = int(np.ceil((x1 - x0) / b)) + 1
+    ny = int(np.ceil((y1 - y0) / b)) + 1
+    dth = min(np.radians(9.0), 1.5 * b / max(0.5 * diam, 1e-6))
+    nt = 1 if round_part else int(np.ceil(2 * np.pi / dth))
+    dth = 2 * np.pi / nt
+    nch = 4
+    ch_w = np.pi / nch
+    m_xy, m_phi, m_z, wts, _ = template(b / 2, max_template)
+    levels = _levels(m_z, max_levels=4, gap_mm=0.5 * b)
+    support = [_support_maps(rays, C, float(np.mean(m_z[lv])), extent_xy, b, nch, 1.5) for lv in levels]
+    Rk = int(np.ceil(np.max(np.linalg.norm(m_xy, axis=1)) / b)) + 2
+    ks = 2 * Rk + 1
+    # correlation of every (level, channel) support map with the rotated template, summed in the
+    # frequency domain (one inverse FFT per theta)
+    nlc = len(levels) * nch
+    Py = cv2.getOptimalDFTSize(ny + Rk + 1)
+    Px = cv2.getOptimalDFTSize(nx + Rk + 1)
+    FS = sfft.rfft2(np.concatenate(support, axis=0).astype(np.float32), s=(Py, Px), workers=-1)
+    lvl_of = np.zeros(len(m_xy), np.int64)
+    for li, lv in enumerate(levels):
+        lvl_of[lv] = li
+    score = np.zeros((nt, ny, nx), np.float32)
+    for it in range(nt):
+        th = it * dth
+        c, s = np.cos(th), np.sin(th)
+        kx = np.rint((c * m_xy[:, 0] - s * m_xy[:, 1]) / b + Rk).astype(np.int64)
+        ky = np.rint((s * m_xy[:, 0] + c * m_xy[:, 1]) / b + Rk).astype(np.int64)
+        chn = np.clip((np.mod(m_phi + th, np.pi) / ch_w).astype(np.int64), 0, nch - 1)
+        ker = np.zeros((nlc, ks, ks), np.float32)
+        np.add.at(ker, (lvl_of * nch + chn, ky, kx), wts.astype(np.float32))
+        used = np.nonzero(ker.reshape(nlc, -1).any(axis=1))[0]
+        FK = sfft.rfft2(ker[used], s=(Py, Px), workers=-1)
+        corr = sfft.irfft2(np.einsum("kij,kij->ij", FS[used], np.conj(FK)), s=(Py, Px), workers=-1)
+        score[it] = np.roll(corr, (Rk, Rk), axis=(0, 1))[:ny, :nx]
+    flat = score.ravel()
+    k = min(len(flat), 20 * n_coarse)
+    top = np.argpartition(-flat, k - 1)[:k]
+    top = top[np.argsort(-flat[top])]
+    it_, rem = np.divmod(top, ny * nx)
+    iy_, ix_ = np.divmod(rem, nx)
+    cx, cy, cth = x0 + ix_ * b, y0 + iy_ * b, it_ * dth
+    keep = _nms(cx, cy, cth, 1.5 * b, 1.5 * dth, n_coarse)
+    cx, cy, cth = cx[keep], cy[keep], cth[keep]
+
+    # ---- fine: re-score the coarse cells' neighbourhoods in the image (exact perspective)
+    _, _, _, f_w, f_sel = template(max(2.0 * px_mm, diam / 100.0), 120)
+    f_P = P[f_sel] + np.array([0.0, 0.0, height_mm])
+    f_D = D[f_sel]
+    hx, hy, ht = cx, cy, cth
+    for step_xy, step_th in ((b / 2, dth / 2), (b / 4, dth / 4)):
+        g = np.array([-step_xy, 0.0, step_xy])
+        gt = np.array([0.0]) if round_part else np.array([-step_th, 0.0, step_th])
+        DX, DY, DT = np.meshgrid(g, g, gt, indexing="ij")
+        hx = (hx[:, None] + DX.ravel()[None, :]).ravel()
+        hy = (hy[:, None] + DY.ravel()[None, :]).ravel()
+        ht = (ht[:, None] + DT.ravel()[None, :]).ravel()
+        fscore = image_score(hx, hy, ht, f_P, f_D, f_w)
+        order = np.argsort(-fscore)[: 3 * n_peaks + 10]
+        hx, hy, ht, fscore = hx[order], hy[order], ht[order], fscore[order]
+    keep = _nms(hx, hy, ht, max(0.2 * diam, 2.5 * b), np.radians(15.0), n_peaks)
+    out: list[_Hyp] = []
+    for i in keep:
+        c1, s1 = np.cos(ht[i]), np.sin(ht[i])
+        T = make_pose(np.array([[c1, -s1, 0], [s1, c1, 0], [0, 0, 1.0]]), [hx[i], hy[i], height_mm]) @ rs.T_rest_obj
+        out.append(_Hyp(state=state, T_table_obj=T, votes=float(fscore[i]), height_mm=height_mm))
+    return out
+
+
+def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, max_angle_deg: float = 20.0):
+    """Score function for many planar poses at once: each pose (x, y, theta) moves template points
+    ``P`` (M, 3, resting frame) with directions ``D``; the score is the weighted share of projected
+    points within ``tau_px`` of an image edge of compatible direction (soft: 1 - d / tau)."""
+    R = T_cam_table[:3, :3]
+    t = T_cam_table[:3, 3]
+    cos_tol = np.cos(np.radians(max_angle_deg))
+
+    def score(hx, hy, ht, P, D, w):
+        c, s = np.cos(ht)[:, None], np.sin(ht)[:, None]
+        X = np.stack([hx[:, None] + c * P[None, :, 0] - s * P[None, :, 1],
+                      hy[:, None] + s * P[None, :, 0] + c * P[None, :, 1],
+                      np.broadcast_to(P[None, :, 2], (len(hx), len(P)))], axis=-1).reshape(-1, 3)
+        Dt = np.stack([c * D[None, :, 0] - s * D[None, :, 1], s * D[None, :, 0] + c * D[None, :, 1],
+                       np.broadcast_to(D[None, :, 2], (len(hx), len(P)))], axis=-1).reshape(-1, 3)
+        Xc = X @ R.T + t
+        uv = project_points_px(Xc, K, dist)
+        uv2 = project_points_px(Xc + 0.5 * (Dt @ R.T), K, dist)
+        tv = uv2 - uv
+        ok = np.isfinite(uv).all(1) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & \
+            (uv[:, 0] <= eimg.width - 1) & (uv[:, 1] <= eimg.height - 1)
+        iu = np.clip(np.nan_to_num(uv[:, 0]).astype(np.int64), 0, eimg.width - 1)
+        iv = np.clip(np.nan_to_num(uv[:, 1]).astype(np.int64), 0, eimg.height - 1)
+        d = eimg.dist_px[iv, iu]
+        a = eimg.edge_angle[eimg.nearest[iv, iu]] if len(eimg.edge_angle) else np.zeros(len(iv))
+        tn = np.linalg.norm(tv, axis=1) + 1e-12
+        # the image gradient is perpendicular to the edge: |sin(angle between gradient and edge)|
+        compat = np.abs(np.cos(a) * tv[:, 1] - np.sin(a) * tv[:, 0]) / tn >= cos_tol
+        val = np.clip(1.0 - d / tau_px, 0.0, 1.0) * compat * ok
+        return val.reshape(len(hx), len(P)) @ w / max(float(w.sum()), 1e-9)
+
+    return score
+
+
+def _nms(x, y, th, r_xy, r_th, n_max) -> list[int]:
+    """Greedy non-maximum suppression of (x, y, theta) sorted best first; indices kept."""
+    alive = np.ones(len(x), bool)
+    keep = []
+    for i in range(len(x)):
+        if not alive[i]:
+            continue
+        keep.append(i)
+        if len(keep) >= n_max:
+            break
+        dang = np.abs(np.mod(th - th[i] + np.pi, 2 * np.pi) - np.pi)
+        alive &= ~((np.hypot(x - x[i], y - y[i]) < r_xy) & (dang < r_th))
+    return keep
+
+
+# --------------------------------------------------------------------------------------------------
+# stage 2: planar oriented-chamfer fit
+# --------------------------------------------------------------------------------------------------
+
+
+def _sample_subset(model: PreparedModel, px_per_mm: float, spacing_px: float, max_n: int) -> np.ndarray:
+    stride = max(1, int(round(spacing_px / max(model.sample_step_mm * px_per_mm, 1e-9))))
+    idx = np.arange(0, len(model.samples_obj), stride)
+    if len(idx) > max_n:
+        idx = np.linspace(0, len(model.samples_obj) - 1, max_n).astype(np.int64)
+    return idx
+
+
+def _chamfer_support(eimg: EdgeImage, uv: np.ndarray, normal: np.ndarray, tol_px: float,
+                     max_angle_deg: float = 25.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nearest edge pixel per projected sample: (supported (N,) bool, residual along normal, q (N,2))."""
+    iu = np.clip(np.rint(uv[:, 0]).astype(int), 0, eimg.width - 1)
+    iv = np.clip(np.rint(uv[:, 1]).astype(int), 0, eimg.height - 1)
+    d = eimg.dist_px[iv, iu]
+    if len(eimg.edge_uv) == 0:
+        return np.zeros(len(uv), bool), np.zeros(len(uv)), uv.copy()
+    j = eimg.nearest[iv, iu]
+    q = eimg.edge_uv[j]
+    a = eimg.edge_angle[j]
+    cosang = np.abs(np.cos(a) * normal[:, 0] + np.sin(a) * normal[:, 1])
+    ok = (d <= tol_px) & (cosang >= np.cos(np.radians(max_angle_deg)))
+    r = np.einsum("ij,ij->i", normal, uv - q)
+    return ok, r, q
+
+
+def _planar_fit(eimg, model, hyp: _Hyp, T_cam_table, K, dist, subset, radii=(14.0, 8.0, 4.0, 2.5)):
+    T = hyp.T_table_obj
+    W, H = eimg.width, eimg.height
+    for r in radii:
+        for _ in range(2):
+            T_cam_obj = T_cam_table @ T
+            es = visible_edge_samples(model, T_cam_obj, K, dist, W, H, occlusion_test=False, subset=subset)
+            if len(es.index) < 8:
+                hyp.score = 0.0
+                hyp.T_table_obj = T
+                return hyp
+            ok, res, _ = _chamfer_support(eimg, es.uv_px, es.normal_uv, r)
+            if ok.sum() < 6:
+                break
+            c_table = transform_points(T, model.center_obj[None])[0]
+            X = es.points_obj[ok]
+            n = es.normal_uv[ok]
+            e = res[ok]
+            J = np.zeros((len(X), 3))
+            base = es.uv_px[ok]
+            for k, h in enumerate((0.5, 0.5, 0.002)):
+                q = np.zeros(3)
+                q[k] = h
+                uvk = project_points_px(transform_points(T_cam_table @ _perturb3(T, c_table, q), X), K, dist)
+                J[:, k] = np.einsum("ij,ij->i", n, (uvk - base) / h)
+            w = np.minimum(1.0, (0.5 * r) / np.maximum(np.abs(e), 1e-9))   # Huber weights
+            A = J.T @ (J * w[:, None]) + np.diag([1e-6, 1e-6, 1e-2])
+            dq = -np.linalg.solve(A, J.T @ (w * e))
+            dq[:2] = np.clip(dq[:2], -r * 3, r * 3)
+            T = _perturb3(T, c_table, dq)
+    T_cam_obj = T_cam_table @ T
+    es = visible_edge_samples(model, T_cam_obj, K, dist, W, H, occlusion_test=False, subset=subset)
+    ok, _, _ = _chamfer_support(eimg, es.uv_px, es.normal_uv, 2.0)
+    hyp.T_table_obj = T
+    hyp.score = float(ok.mean()) if len(ok) else 0.0
+    return hyp
+
+
+# --------------------------------------------------------------------------------------------------
+# stage 3: subpixel edges and 6-DoF least squares
+# --------------------------------------------------------------------------------------------------
+
+
+def _edges_along_normals(lin: np.ndarray, uv: np.ndarray, normal: np.ndarray, search_px: float,
+                         plateau_px: float = 2.5, step_px: float = 0.25):
+    """Find the image edge near each point along its normal; position at the 50 % crossing.
+
+    For each sample a profile of the gamma-decoded image is read along the normal (bilinear, every
+    ``step_px``); the edge is the gradient peak within ``search_px`` that is strongest after a
+    Gaussian preference for small offsets; its position is where the profile crosses the mean of the
+    two plateaus ``plateau_px`` before and after the peak (linear interpolation).
+
+    Returns offset (N,) px along the normal, contrast (N,) (plateau difference, linear units).
+    """
+    offs = np.arange(-(search_px + plateau_px + 1.0), search_px + plateau_px + 1.0 + 1e-9, step_px)
+    L = len(offs)
+    pts = uv[:, None, :] + offs[None, :, None] * normal[:, None, :]
+    mapx = pts[..., 0].astype(np.float32)
+    mapy = pts[..., 1].astype(np.float32)
+    prof = cv2.remap(lin, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+    g = np.diff(prof, axis=1) / step_px                  # at mid offsets
+    mid = 0.5 * (offs[:-1] + offs[1:])
+    inwin = np.abs(mid) <= search_px
+    wgt = np.abs(g) * np.exp(-0.5 * (mid / max(search_px * 0.75, 1.0)) ** 2)[None, :]
+    wgt[:, ~inwin] = -1.0
+    k = np.argmax(wgt, axis=1)                           # gradient between samples k and k+1
+    kw = int(round(plateau_px / step_px))
+    rows = np.arange(len(uv))
+    a_idx = np.clip(k - kw, 0, L - 1)
+    b_idx = np.clip(k + 1 + kw, 0, L - 1)
+    lo = 0.5 * (prof[rows, a_idx] + prof[rows, np.clip(a_idx - 2, 0, L - 1)])
+    hi = 0.5 * (prof[rows, b_idx] + prof[rows, np.clip(b_idx + 2, 0, L - 1)])
+    level = 0.5 * (lo + hi)
+    # crossing nearest to the peak within [a, b]
+    win = np.arange(-kw, kw + 1)
+    j0 = np.clip(k[:, None] + win[None, :], 0, L - 2)
+    f0 = prof[rows[:, None], j0] - level[:, None]
+    f1 = prof[rows[:, None], j0 + 1] - level[:, None]
+    cross = (f0 * f1 <= 0) & (f0 != f1)
+    dist_to_peak = np.where(cross, np.abs(win)[None, :], 10 ** 6)
+    jj = np.argmin(dist_to_peak, axis=1)
+    has = cross[rows, jj]
+    j = j0[rows, jj]
+    fa, fb = f0[rows, jj], f1[rows, jj]
+    frac = np.where(has, fa / np.where(fa != fb, fa - fb, 1.0), 0.5)
+    off = offs[j] + frac * step_px
+    off = np.where(has, off, np.nan)
+    return off, np.abs(hi - lo)
+
+
+def _clear_of_other_edges(model: PreparedModel, es, radius_px: float, max_turn_deg: float = 20.0) -> np.ndarray:
+    """(N,) bool: no other visible edge comes within ``radius_px`` of the sample in the image, apart
+    from the continuation of its own line (same direction, on the line). Profiles near corners,
+    junctions of a rim with a silhouette, or a second parallel edge close by are biased."""
+    uv = es.uv_px
+    if len(uv) < 2:
+        return np.ones(len(uv), bool)
+    tree = cKDTree(uv)
+    pairs = tree.query_pairs(radius_px, output_type="ndarray")
+    ok = np.ones(len(uv), bool)
+    if len(pairs) == 0:
+        return ok
+    i, j = pairs[:, 0], pairs[:, 1]
+    e = model.sample_edge[es.index]
+    diff_edge = e[i] != e[j]
+    n = es.normal_uv
+    cos_t = np.abs(np.einsum("ij,ij->i", n[i], n[j]))
+    d = uv[j] - uv[i]
+    off_i = np.abs(np.einsum("ij,ij->i", n[i], d))
+    off_j = np.abs(np.einsum("ij,ij->i", n[j], d))
+    bad = diff_edge & ((cos_t < np.cos(np.radians(max_turn_deg))) | (np.maximum(off_i, off_j) > 0.75))
+    ok[i[bad]] = False
+    ok[j[bad]] = False
+    return ok
+
+
+FREE_6DOF = (0, 1, 2, 3, 4, 5)
+FREE_REST = (0, 1, 2, 5)      # x, y, z, rotation about the table normal: part lying flat
+
+
+def _refine(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_cam_table, K, dist,
+            occluders_cam, subset, *, free=FREE_6DOF, radii=(5.0, 3.0, 2.0, 2.0), min_contrast: float,
+            round_axis_table: np.ndarray | None = None, f_scale_px: float = 0.5):
+    """Iterated least-squares fit of the free pose parameters to subpixel image edges.
+
+    Parameters p = (dx, dy, dz mm, rotation vector rad) move the part about its centre of mass in
+    the table frame; ``free`` selects which are fitted (``FREE_REST`` keeps the part flat). Each
+    round re-computes the visible edges (z-buffer with the occluders) and looks for the image edge
+    along each edge normal within the round's radius. Returns (T_table_obj, info).
+    """
+    W, H = eimg.width, eimg.height
+    free = np.asarray(free, dtype=np.int64)
+    T = T_table_obj.copy()
+    info: dict = {}
+    for r in radii:
+        T_cam_obj = T_cam_table @ T
+        es = visible_edge_samples(model, T_cam_obj, K, dist, W, H, occluders=occluders_cam,
+                                  occlusion_test=True, subset=subset)
+        if len(es.index) < 12:
+            return T, {"n_visible": len(es.index), "failed": "too few of its edges are visible"}
+        far = _clear_of_other_edges(model, es, r + 3.0)
+        off, contrast = _edges_along_normals(eimg.linear, es.uv_px, es.normal_uv, r)
+        good = far & np.isfinite(off) & (contrast >= min_contrast)
+        if good.sum() < 10:
+            return T, {"n_visible": len(es.index), "failed": "too few image edges along the model's edges"}
+        X = es.points_obj[good]
+        n = es.normal_uv[good]
+        target = es.uv_px[good] + off[good, None] * n
+        c_table = transform_points(T, model.center_obj[None])[0]
+        T0 = T
+        pin = None
+        if round_axis_table is not None and len(free) == 6:
+            pin = round_axis_table
+
+        def full(q, free=free):
+            p = np.zeros(6)
+            p[free] = q
+            return p
+
+        def fun(q, X=X, n=n, target=target, T0=T0, c_table=c_table, pin=pin):
+            p = full(q)
+            uv = project_points_px(transform_points(T_cam_table @ _perturb(T0, c_table, p), X), K, dist)
+            res = np.einsum("ij,ij->i", n, uv - target)
+            if pin is not None:   # round part: pin the unobservable spin
+                res = np.append(res, 1e4 * float(p[3:6] @ pin))
+            return res
+
+        xs = np.array([1.0, 1.0, 1.0, 1e-3, 1e-3, 1e-3])[free]
+        sol = least_squares(fun, np.zeros(len(free)), loss="soft_l1", f_scale=f_scale_px, method="trf",
+                            x_scale=xs, max_nfev=60)
+        T = _perturb(T0, c_table, full(sol.x))
+        info = {"sol": sol, "X": X, "n": n, "target": target, "T0": T0, "c_table": c_table,
+                "n_visible": len(es.index), "n_used": int(good.sum()), "free": free, "pin": pin,
+                "edge": model.sample_edge[es.index[good]]}
+    return T, info
+
+
+def _verify(eimg, model, T_table_obj, T_cam_table, K, dist, occluders_cam, subset, *, min_contrast,
+            support_px: float = 1.5, search_px: float = 3.0):
+    """Share of the visible model samples with an image edge within ``support_px`` (subpixel)."""
+    W, H = eimg.width, eimg.height
+    es = visible_edge_samples(model, T_cam_table @ T_table_obj, K, dist, W, H, occluders=occluders_cam,
+                              occlusion_test=True, subset=subset)
+    if len(es.index) == 0:
+        return 0.0, es, np.zeros(0, bool)
+    off, contrast = _edges_along_normals(eimg.linear, es.uv_px, es.normal_uv, search_px)
+    sup = np.isfinite(off) & (np.abs(np.nan_to_num(off, nan=99.0)) <= support_px) & (contrast >= min_contrast)
+    return float(sup.mean()), es, sup
+
+
+def _covariance(info: dict, K, dist, T_cam_table) -> tuple[np.ndarray, np.ndarray, float]:
+    """6x6 covariance of p = (t mm at the part's centre, rotation vector rad) from the last solve
+    over the robust inliers (zero rows/columns for parameters held fixed): the classical
+    ``(J^T J)^-1 s^2`` plus the cluster-robust term for errors shared along each model edge."""
+    sol, free, pin = info["sol"], info["free"], info["pin"]
+    X, n, target, T0, c_table = info["X"], info["n"], info["target"], info["T0"], info["c_table"]
+    p = np.zeros(6)
+    p[free] = sol.x
+
+    def raw(pp):
+        uv = project_points_px(transform_points(T_cam_table @ _perturb(T0, c_table, pp), X), K, dist)
+        return np.einsum("ij,ij->i", n, uv - target)
+
+    r = raw(p)
+    scale = 1.4826 * float(np.median(np.abs(r))) + 1e-9
+    inl = np.abs(r) < max(3.0 * scale, 0.3)
+    J = np.zeros((len(r), 6))
+    for k in free:
+        h = 1e-3 if k < 3 else 1e-6
+        dp = np.zeros(6)
+        dp[k] = h
+        J[:, k] = (raw(p + dp) - raw(p - dp)) / (2 * h)
+    Ji, ri = J[inl][:, free], r[inl]
+    m = len(ri)
+    s2 = float(ri @ ri) / max(m - len(free), 1)
+    A = Ji.T @ Ji
+    if pin is not None:
+        a = np.concatenate([np.zeros(3), pin])[free]
+        A = A + 1e8 * np.outer(a, a)
+    Ainv = np.linalg.pinv(A)
+    cov_iid = Ainv * s2
+    # samples along one model edge share its errors (blur, shading, tessellation): cluster-robust
+    # "sandwich" covariance with the edges as clusters (Liang & Zeger 1986, Biometrika 73(1), eq. 2.4)
+    edges = info["edge"][inl]
+    G = np.zeros((len(free), len(free)))
+    for e in np.unique(edges):
+        g = Ji[edges == e].T @ ri[edges == e]
+        G += np.outer(g, g)
+    n_cl = len(np.unique(edges))
+    G *= n_cl / max(n_cl - len(free), 1)          # small-sample correction
+    cov_cl = Ainv @ G @ Ainv
+    cov = np.zeros((6, 6))
+    cov[np.ix_(free, free)] = cov_cl + cov_iid
+    return cov, inl, float(np.sqrt(np.mean(ri ** 2))) if m else float("nan")
+
+
+# --------------------------------------------------------------------------------------------------
+# main entry
+# --------------------------------------------------------------------------------------------------
+
+
+def _pose_distance(T1, T2, c_obj):
+    p1 = transform_points(T1, c_obj[None])[0]
+    p2 = transform_points(T2, c_obj[None])[0]
+    R = T1[:3, :3].T @ T2[:3, :3]
+    ang = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
+    return float(np.linalg.norm(p1 - p2)), float(ang)
+
+
+def _same_up_to_symmetry(model: PreparedModel, T1, T2, pos_tol, ang_tol, exact_only: bool = False) -> bool:
+    """T1 ~ T2 @ S for a symmetry S (``exact_only``: exact symmetries and near ones that turn about
+    the table normal; near-symmetric flips onto another face then count as different poses)."""
+    Ss = [np.eye(4)] + [s.S for s in model.symmetries
+                        if s.exact or not exact_only or abs(float((T2[:3, :3] @ s.axis_obj)[2])) > 0.99]
+    for S in Ss:
+        d, a = _pose_distance(T1, T2 @ S, model.center_obj)
+        if d < pos_tol and (a < ang_tol or model.continuous_axis_obj is not None and
+                            abs(float((T1[:3, :3] @ model.continuous_axis_obj) @ (T2[:3, :3] @ model.continuous_axis_obj))) > np.cos(np.radians(ang_tol))):
+            return True
+    return False
+
+
+def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, height_offsets_mm=(0.0,),
+            resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10, max_edges: int = 60000, rng=None,
+            timings: dict | None = None):
+    """Stages 1 and 2: starts from the plane search, aligned in the table plane, best first.
+    Returns (hypotheses, px_per_mm) or the reason (str) why there are none."""
+    timings = {} if timings is None else timings
+    memo = ("search", id(model), T_cam_table.tobytes(), tuple(height_offsets_mm),
+            None if resting_states is None else tuple(resting_states), min_state_probability, n_starts, n_planar)
+    if memo in eimg.cache:              # same image, model and table pose: reuse (recognition)
+        timings.setdefault("search", 0.0)
+        timings.setdefault("planar_fit", 0.0)
+        return eimg.cache[memo]
+    rng = np.random.default_rng(0) if rng is None else rng
+    t = time.perf_counter()
+    T_table_cam = inv(T_cam_table)
+    C = T_table_cam[:3, 3]
+    key = ("rays", max_edges, T_cam_table.tobytes())
+    if key not in eimg.cache:
+        eimg.cache[key] = _edge_rays_table(eimg, K, dist, T_table_cam, max_edges, rng)
+    rays = eimg.cache[key]
+    if rays is None:
+        return "the image has no edges"
+    _, r0, r1 = rays
+    lam = -C[2] / r0[:, 2]
+    lam1 = -C[2] / r1[:, 2]
+    okp = (lam > 0) & (lam1 > 0)
+    pts = C[:2] + lam[okp, None] * r0[okp, :2]
+    if len(pts) < 20:
+        return "no image edges fall on the table plane"
+    px_mm = 0.5 * float(np.median(np.linalg.norm((C[:2] + lam1[okp, None] * r1[okp, :2]) - pts, axis=1)))
+    lo_xy = np.maximum(np.percentile(pts, 1, axis=0), C[:2] - 3000.0) - 150.0
+    hi_xy = np.minimum(np.percentile(pts, 99, axis=0), C[:2] + 3000.0) + 150.0
+    extent = (float(lo_xy[0]), float(hi_xy[0]), float(lo_xy[1]), float(hi_xy[1]))
+    if resting_states is None:
+        states = [i for i, s in enumerate(model.resting_states)
+                  if s.same_as < 0 and (i == 0 or s.probability >= min_state_probability)]
+    else:
+        states = list(resting_states)
+    hyps: list[_Hyp] = []
+    scorer = _image_scorer(eimg, K, dist, T_cam_table)
+    for st in states:
+        for h in height_offsets_mm:
+            hyps += _plane_search(model, st, float(h), rays, C, extent, n_starts, px_mm=px_mm,
+                                  image_score=scorer, cache=eimg.cache)
+    timings["search"] = (time.perf_counter() - t) * 1e3
+    if not hyps:
+        return "the search produced no pose on the table"
+    t = time.perf_counter()
+    hyps.sort(key=lambda h: -h.votes)
+    hyps = hyps[:n_planar]
+    z_typ = float(np.median(transform_points(T_cam_table, np.array([[*h.T_table_obj[:2, 3], 0.0] for h in hyps]))[:, 2]))
+    px_per_mm = K[0, 0] / max(z_typ, 1.0)
+    sub_coarse = _sample_subset(model, px_per_mm, 4.0, 400)
+    for h in hyps:
+        _planar_fit(eimg, model, h, T_cam_table, K, dist, sub_coarse)
+    hyps.sort(key=lambda h: -h.score)
+    timings["planar_fit"] = (time.perf_counter() - t) * 1e3
+    eimg.cache[memo] = (hyps, px_per_mm)
+    return hyps, px_per_mm
+
+
+def search_poses(image, K, dist, T_cam_table, model: PreparedModel, *, gamma: float = 2.2,
+                 edge_image: EdgeImage | None = None, **kw) -> list[tuple[np.ndarray, float]]:
+    """The coarse stages alone: candidate ``T_table_obj`` aligned in the table plane with their
+    chamfer score (share of visible edges within 2 px of an image edge), best first. For
+    diagnostics and as a common start for other refinement methods."""
+    eimg = edge_image if edge_image is not None else prepare_image(image, gamma=gamma)
+    found = _search(eimg, np.asarray(K, float), np.zeros(5) if dist is None else np.asarray(dist, float).ravel(),
+                    check_pose(T_cam_table, "T_cam_table"), model, **kw)
+    if isinstance(found, str):
+        return []
+    return [(h.T_table_obj, h.score) for h in found[0]]
+
+
+def _unexplained_edges(eimg: EdgeImage, model: PreparedModel, T_cam_obj, K, dist, inset_px: float = 3.0,
+                       tol_px: float = 2.0) -> float:
+    """Share of the image's edge pixels inside the model's projected outline that lie farther than
+    ``tol_px`` from every visible model edge (pinhole coordinates; the outline shrunk by ``inset_px``)."""
+    key = ("undist", K.tobytes(), np.asarray(dist).tobytes())
+    if key not in eimg.cache:
+        eimg.cache[key] = (cv2.undistortPoints(eimg.edge_uv.reshape(-1, 1, 2), K, dist, P=K).reshape(-1, 2)
+                           if len(eimg.edge_uv) else np.zeros((0, 2)))
+    uv_u = eimg.cache[key]
+    V = transform_points(T_cam_obj, model.mesh.vertices)
+    if len(uv_u) == 0 or np.any(V[:, 2] <= 1.0):
+        return 0.0
+    u = K[0, 0] * V[:, 0] / V[:, 2] + K[0, 2]
+    v = K[1, 1] * V[:, 1] / V[:, 2] + K[1, 2]
+    x0, x1 = max(u.min(), 0.0), min(u.max(), eimg.width - 1.0)
+    y0, y1 = max(v.min(), 0.0), min(v.max(), eimg.height - 1.0)
+    if x1 <= x0 + 2 or y1 <= y0 + 2:
+        return 0.0
+    s = min(1.0, 400.0 / max(x1 - x0, y1 - y0))
+    Wb, Hb = int(np.ceil((x1 - x0) * s)) + 2, int(np.ceil((y1 - y0) * s)) + 2
+    Kb = np.array([[K[0, 0] * s, 0, (K[0, 2] - x0) * s], [0, K[1, 1] * s, (K[1, 2] - y0) * s], [0, 0, 1.0]])
+    depth, _ = render_depth([(V, model.mesh.faces)], Kb, Wb, Hb)
+    mask = np.isfinite(depth).astype(np.uint8)
+    r = max(1, int(round(inset_px * s)))
+    mask = cv2.erode(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    iu = np.rint((uv_u[:, 0] - x0) * s).astype(np.int64)
+    iv = np.rint((uv_u[:, 1] - y0) * s).astype(np.int64)
+    ok = (iu >= 0) & (iu < Wb) & (iv >= 0) & (iv < Hb)
+    inside = np.zeros(len(uv_u), bool)
+    inside[ok] = mask[iv[ok], iu[ok]] > 0
+    if inside.sum() < 10:
+        return 0.0
+    es = visible_edge_samples(model, T_cam_obj, K, None, eimg.width, eimg.height, occlusion_test=True)
+    if len(es.index) == 0:
+        return 1.0
+    d, _ = cKDTree(es.uv_px).query(uv_u[inside], distance_upper_bound=tol_px + model.sample_step_mm * s * 4)
+    return float(np.mean(d > tol_px + 0.5 * model.sample_step_mm * K[0, 0] / float(np.median(V[:, 2]))))
+
+
+def _start_hypotheses(model: PreparedModel, start_poses, T_cam_table, K):
+    """Given starts as hypotheses: each in the resting state whose table normal it matches best."""
+    hyps = []
+    for T0 in start_poses:
+        T0 = check_pose(T0, "start pose T_table_obj")
+        ups = [float((T0[:3, :3] @ (inv(r.T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0])))[2])
+               for r in model.resting_states]
+        hyps.append(_Hyp(state=int(np.argmax(ups)), T_table_obj=T0, votes=1.0, score=1.0))
+    if not hyps:
+        return "no start pose given"
+    z = float(transform_points(T_cam_table, hyps[0].T_table_obj[:3, 3][None])[0, 2])
+    return hyps, K[0, 0] / max(z, 1.0)
+
+
+def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder_models=(), known_models=(),
+                  gamma: float = 2.2, height_offsets_mm=(0.0,), free_height: bool = False, resting_states=None,
+                  min_score: float = 0.35, min_margin: float = 0.08, min_distinctiveness: float = 0.1,
+                  max_tilt_deg: float = 0.5, max_sigma_mm: float = 0.2, max_sigma_deg: float = 0.1,
+                  n_starts: int = 6, n_planar: int = 10, n_refine: int = 3, max_edges: int = 60000,
+                  edge_image: EdgeImage | None = None, sigma_scale: float = 1.0, seed: int = 0,
+                  start_poses=None):
+    """Locate one part on the table. Returns :class:`ObjectPose` or :class:`ObjectFailure`.
+
+    ``start_poses``: optional ``T_table_obj`` starts (e.g. an operator's adjusted pose, "refine from
+    here") that replace the search; refinement, verification and uncertainty are as usual.
+
+    Parameters
+    ----------
+    image : (H, W) uint8 grey (or BGR); ignored when ``edge_image`` (from :func:`prepare_image`) is given
+    K : (3, 3), dist : (5,) OpenCV intrinsics of the image
+    T_cam_table : (4, 4) pose of the table in the camera frame, mm
+    model : prepared part
+    occluder_models : pairs ``(PreparedModel or trimesh.Trimesh, T_table_occ)`` of objects with known
+        poses (vise, clamps) that may hide parts of the model's edges
+    known_models : pairs ``(PreparedModel, T_table_model)`` of geometry whose edges are not the part,
+        typically the table itself with the identity pose: its border, slots and steps are removed
+        from the edge map before the search (see :func:`mask_known_edges`)
+    gamma : the camera's encoding gamma (intensities are decoded as ``(I/255) ** gamma``)
+    height_offsets_mm : heights above the table to search (e.g. ``(0, 10, 20)`` for unknown parallels)
+    free_height : fit the height above the table too (parts on parallels); by default the part lies
+        on the table (or at the searched height offset) and only x, y and the rotation are fitted
+    resting_states : indices into ``model.resting_states`` to try (default: the distinct states with a
+        probability of at least 0.1, always including the likeliest)
+    min_score : least share of visible model edges supported by image edges to accept
+    min_margin : least score difference to the best different pose
+    min_distinctiveness : least drop of the score when the fitted pose is moved by 4 px along x, y or
+        turned by as much (in the better of the two directions each); fits onto a single straight
+        edge or onto texture do not drop and are refused
+    max_tilt_deg : residual tilt above which (and above 3 sigma) the result carries the "tilt" flag
+    max_sigma_mm, max_sigma_deg : tolerances on the 1-sigma uncertainty; ``uncertainty_ok`` says
+        whether they hold (flag "uncertainty" when not)
+    n_starts : search peaks per resting state and height; n_planar : best of those aligned in the
+        table plane; n_refine : distinct aligned starts refined and verified
+    sigma_scale : factor on the least-squares sigma (edge samples along one edge are not independent;
+        the benchmark calibrates it)
+
+    The pose is fitted lying flat (x, y, rotation about the table normal; height with ``free_height``),
+    then once more in free 6 DoF: its tilt is reported (flag "tilt" when it exceeds ``max_tilt_deg``
+    and 3 sigma; the free pose is in ``T_table_obj_6dof``).
+    """
+    t_all = time.perf_counter()
+    timings: dict[str, float] = {}
+    K = np.asarray(K, dtype=float)
+    dist = np.zeros(5) if dist is None else np.asarray(dist, dtype=float).ravel()
+    T_cam_table = check_pose(T_cam_table, "T_cam_table")
+    T_table_cam = inv(T_cam_table)
+    rng = np.random.default_rng(seed)
+    t = time.perf_counter()
+    eimg = edge_image if edge_image is not None else prepare_image(image, gamma=gamma)
+    if known_models:
+        eimg = mask_known_edges(eimg, [(m, T_cam_table @ np.asarray(T, float)) for m, T in known_models], K, dist)
+    timings["edges"] = (time.perf_counter() - t) * 1e3
+    W, H = eimg.width, eimg.height
+    name = model.name
+
+    def fail(kind, reason, best=0.0, cands=()):
+        timings["total"] = (time.perf_counter() - t_all) * 1e3
+        return ObjectFailure(model_name=name, kind=kind, reason=reason, best_score=float(best),
+                             candidates=tuple(cands), timings_ms=dict(timings))
+
+    if len(eimg.edge_uv) < 20:
+        return fail("not_found", f"{name} not found: the image has almost no edges "
+                                 f"({len(eimg.edge_uv)} edge pixels); check exposure and focus")
+    occluders_cam = tuple((m, T_cam_table @ np.asarray(T, float)) for m, T in occluder_models)
+    C = T_table_cam[:3, 3]
+    if C[2] <= 0:
+        return fail("bad_input", "the camera is below the table plane according to T_cam_table "
+                                 f"(camera height {C[2]:.0f} mm); check the table pose")
+
+    # ---- stages 1 and 2: search and planar fit
+    if start_poses is not None:
+        found = _start_hypotheses(model, start_poses, T_cam_table, K)
+    else:
+        found = _search(eimg, K, dist, T_cam_table, model, height_offsets_mm=height_offsets_mm,
+                        resting_states=resting_states, n_starts=n_starts, n_planar=n_planar,
+                        max_edges=max_edges, rng=rng, timings=timings)
+    if isinstance(found, str):
+        return fail("not_found", f"{name} not found: {found}")
+    hyps, px_per_mm = found
+
+    # ---- stage 3: refine the best distinct starts (flat on the table: x, y, z, rotation)
+    t = time.perf_counter()
+    pos_tol = max(2.0, 0.04 * model.diameter_mm)
+    distinct: list[_Hyp] = []
+    for h in hyps:
+        if h.score <= 0:
+            continue
+        # near-symmetric alternatives (e.g. the part upside down) are refined separately and compete
+        if any(_same_up_to_symmetry(model, h.T_table_obj, d.T_table_obj, pos_tol, 4.0, exact_only=True)
+               for d in distinct):
+            continue
+        distinct.append(h)
+        if len(distinct) >= n_refine:
+            break
+    if not distinct:
+        return fail("not_found", f"{name} not found: no start matched any image edges")
+    sub_fine = _sample_subset(model, px_per_mm, 2.5, 1500)
+    min_contrast = max(0.01, 6.0 * eimg.noise_linear)
+
+    def refine_rest(T0, state, radii=(5.0, 3.0, 2.0, 2.0)):
+        rs_axis = inv(model.resting_states[state].T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        free = (0, 1, 2, 5) if free_height else (0, 1, 5)
+        if model.continuous_axis_obj is not None and abs(float(rs_axis @ model.continuous_axis_obj)) > 0.999:
+            free = free[:-1]          # round part standing on its face: its spin is not observable
+        T, info = _refine(eimg, model, T0, T_cam_table, K, dist, occluders_cam, sub_fine, free=free,
+                          radii=radii, min_contrast=min_contrast)
+        score, es, sup = _verify(eimg, model, T, T_cam_table, K, dist, occluders_cam, sub_fine,
+                                 min_contrast=min_contrast)
+        spacing = float(np.median(np.linalg.norm(np.diff(es.uv_px, axis=0), axis=1))) if len(es.index) > 2 else 0.0
+        support_px = float(np.count_nonzero(sup)) * min(spacing, 10.0)
+        # rank: share of the model's edges supported, weighted by how much image evidence that is
+        # (a simpler hypothesis, e.g. the part upside down with its pocket hidden, explains less)
+        return {"state": state, "T": T, "info": info, "score": score, "es": es, "sup": sup,
+                "support_px": support_px, "key": score * np.sqrt(support_px)}
+
+    results = []
+    for h in distinct:
+        r = refine_rest(h.T_table_obj, h.state)
+        r["hyp"] = h
+        results.append(r)
+    timings["refine"] = (time.perf_counter() - t) * 1e3
+
+    # ---- stage 4: verification, symmetry, tilt, uncertainty
+    t = time.perf_counter()
+    results.sort(key=lambda r: -r["key"])
+    best = results[0]
+    # near symmetries (outline maps, small features do not): try the turned poses, keep the best
+    # (only turns about the table normal: a near-symmetric flip puts the part on another face, which
+    # the search covers as its own resting state, at its own height)
+    near = [s for s in model.symmetries if not s.exact
+            and abs(float((best["T"][:3, :3] @ s.axis_obj)[2])) > 0.99]
+    sym_scores = []
+    if near and "sol" in best["info"]:
+        base = best
+        for s in near:
+            alt = refine_rest(base["T"] @ s.S, base["state"], radii=(2.0, 2.0))
+            alt["hyp"] = base["hyp"]
+            sym_scores.append((s, alt["score"]))
+            if alt["key"] > best["key"]:
+                best = alt
+    if "sol" in best["info"]:          # polish the chosen pose with a narrow search
+        pol = refine_rest(best["T"], best["state"], radii=(2.0, 1.5, 1.5))
+        if "sol" in pol["info"] and pol["key"] >= best["key"] * 0.98:
+            pol["hyp"] = best["hyp"]
+            results = [pol if r is best else r for r in results]
+            best = pol
+    cands = [{"T_table_obj": r["T"].tolist(), "score": round(r["score"], 4)} for r in results]
+    others = [r for r in results if r is not best and
+              not _same_up_to_symmetry(model, r["T"], best["T"], pos_tol, 4.0, exact_only=True)]
+    runner = max((r["score"] for r in others), default=float("nan"))
+    margin = best["score"] - runner if others else float("nan")
+    if "sol" not in best["info"]:
+        timings["verify"] = (time.perf_counter() - t) * 1e3
+        return fail("not_found", f"{name} not found: {best['info'].get('failed', 'the fit did not converge')}",
+                    best["score"], cands)
+    if best["score"] < min_score:
+        timings["verify"] = (time.perf_counter() - t) * 1e3
+        return fail("not_found",
+                    f"{name} not found: the best fit supports only {best['score']:.0%} of its visible "
+                    f"edges (need {min_score:.0%}); the part may be hidden, outside the image or a "
+                    f"different model", best["score"], cands)
+    # distinctiveness: the support must drop when the pose is moved by a few pixels in every
+    # direction of the table plane (a fit along one straight edge or onto texture does not)
+    shift_mm = 4.0 / px_per_mm
+    c_tab = transform_points(best["T"], model.center_obj[None])[0]
+    dth = shift_mm / max(0.5 * model.diameter_mm, 1.0)
+    drops = {}
+    for key, q in (("x", (shift_mm, 0, 0)), ("-x", (-shift_mm, 0, 0)), ("y", (0, shift_mm, 0)),
+                   ("-y", (0, -shift_mm, 0)), ("rz", (0, 0, dth)), ("-rz", (0, 0, -dth))):
+        if model.continuous_axis_obj is not None and key.endswith("rz"):
+            continue
+        sc, _, _ = _verify(eimg, model, _perturb3(best["T"], c_tab, np.array(q, float)), T_cam_table, K, dist,
+                           occluders_cam, sub_fine, min_contrast=min_contrast)
+        drops[key] = best["score"] - sc
+    pairs = [max(drops.get(a, 1.0), drops.get(b, 1.0)) for a, b in (("x", "-x"), ("y", "-y"), ("rz", "-rz"))]
+    distinct_drop = float(min(pairs))
+    if distinct_drop < min_distinctiveness:
+        weakest = ("x", "y", "rotation")[int(np.argmin(pairs))]
+        timings["verify"] = (time.perf_counter() - t) * 1e3
+        return fail("not_found",
+                    f"{name} not found: the best fit ({best['score']:.0%} of its visible edges) is not "
+                    f"distinct: moved a few pixels in {weakest} it still fits {best['score'] - distinct_drop:.0%} "
+                    f"(need a drop of {min_distinctiveness:.0%}); it lies on straight edges or texture, "
+                    f"not on the part", best["score"], cands)
+    if others and margin < min_margin:
+        timings["verify"] = (time.perf_counter() - t) * 1e3
+        return fail("ambiguous",
+                    f"{name} ambiguous: two different poses fit almost equally well "
+                    f"({best['score']:.0%} and {runner:.0%} of the visible edges, margin "
+                    f"{margin:.0%} < {min_margin:.0%}); take another view or give the pose roughly",
+                    best["score"], cands)
+    # the part flipped onto another face by a near symmetry (same outline, e.g. a pocket hidden
+    # underneath) needs twice the margin: fewer visible edges are easier to support
+    flips = [r for r in others if _same_up_to_symmetry(model, r["T"], best["T"], pos_tol, 4.0)]
+    flip_runner = max((r["score"] for r in flips), default=float("nan"))
+    if flips and best["score"] - flip_runner < 2 * min_margin:
+        timings["verify"] = (time.perf_counter() - t) * 1e3
+        return fail("ambiguous",
+                    f"{name} ambiguous: the part fits almost as well turned over onto another face "
+                    f"({best['score']:.0%} and {flip_runner:.0%} of the visible edges, margin "
+                    f"{best['score'] - flip_runner:.0%} < {2 * min_margin:.0%}); its distinguishing "
+                    f"features are not clear in this view; take another view or give the pose roughly",
+                    best["score"], cands)
+
+    # residual tilt: free 6-DoF fit from the flat result
+    st = best["state"]
+    ra = None if model.continuous_axis_obj is None else best["T"][:3, :3] @ model.continuous_axis_obj
+    T6, info6 = _refine(eimg, model, best["T"], T_cam_table, K, dist, occluders_cam, sub_fine,
+                        free=FREE_6DOF, radii=(2.0, 2.0), min_contrast=min_contrast, round_axis_table=ra)
+    n_rest = inv(model.resting_states[st].T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    up = T6[:3, :3] @ n_rest
+    tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+    flags = []
+    tilt_sigma = float("nan")
+    if "sol" in info6:
+        cov6, _, _ = _covariance(info6, K, dist, T_cam_table)
+        tilt_sigma = float(np.degrees(np.sqrt(max(cov6[3, 3] + cov6[4, 4], 0.0)))) * sigma_scale
+    if "sol" in info6 and tilt > max_tilt_deg and tilt > 3.0 * tilt_sigma:
+        flags.append("tilt")          # the free fit says: not lying flat (pose stays the flat fit)
+    T_table_obj, info = best["T"], best["info"]
+    cov, inl, rms = _covariance(info, K, dist, T_cam_table)
+    # covariance of (origin position, rotation): origin = c + R(dr)(o - c) + dt
+    o = T_table_obj[:3, 3]
+    c = transform_points(T_table_obj, model.center_obj[None])[0]
+    lever = o - c
+    A = np.eye(6)
+    A[:3, 3:] = -np.array([[0, -lever[2], lever[1]], [lever[2], 0, -lever[0]], [-lever[1], lever[0], 0]])
+    cov_o = A @ cov @ A.T
+    sd = np.sqrt(np.maximum(np.diag(cov_o), 0)) * sigma_scale
+    sigma = {"x_mm": float(sd[0]), "y_mm": float(sd[1]), "z_mm": float(sd[2]),
+             "rx_deg": float(np.degrees(sd[3])), "ry_deg": float(np.degrees(sd[4])),
+             "rz_deg": float(np.degrees(sd[5]))}
+    if model.continuous_axis_obj is not None:
+        ax = np.abs(T_table_obj[:3, :3] @ model.continuous_axis_obj)
+        for k, key in enumerate(("rx_deg", "ry_deg", "rz_deg")):
+            if ax[k] > 0.9:
+                sigma[key] = float("nan")
+    # symmetry and datum
+    exact = [s for s in model.symmetries if s.exact]
+    listed = list(exact)
+    ambiguous_datum = False
+    if model.continuous_axis_obj is not None:
+        note = ("the part is round: its rotation about its axis cannot be seen; the datum's angle "
+                "about that axis is arbitrary (its sigma is reported as undetermined)")
+        ambiguous_datum = True
+    elif exact:
+        note = (f"the part looks the same after {len(exact)} rotation(s) "
+                f"({', '.join(f'{s.angle_deg:.0f} deg' for s in exact)}): {len(exact) + 1} equivalent "
+                f"poses, the datum cannot be chosen from the image; confirm which one is meant")
+        ambiguous_datum = True
+    elif not sym_scores:
+        note = "the part has no rotational symmetry: the datum follows from the fit"
+    if sym_scores:
+        gap = min(best["score"] - sc for _, sc in sym_scores)
+        alts = ", ".join(f"{sc:.0%} turned {s.angle_deg:.0f} deg" for s, sc in sym_scores)
+        head = "" if not (exact or model.continuous_axis_obj is not None) else note + "; "
+        if gap >= 0.5 * min_margin:
+            note = (f"{head}the outline is near-symmetric; the datum was chosen by the small features that "
+                    f"break the symmetry (score {best['score']:.0%} vs {alts})")
+        else:
+            note = (f"{head}the outline is near-symmetric and the features that break the symmetry are not "
+                    f"clear enough in this image (score {best['score']:.0%} vs {alts}): the datum is not "
+                    f"decided; all {len(near) + 1} candidate poses are listed, confirm which one is meant")
+            ambiguous_datum = True
+            listed += near
+    equivalent = tuple(T_table_obj @ s.S for s in listed)
+    if ambiguous_datum:
+        flags.append("datum_ambiguous")
+    worst_mm = max(sigma["x_mm"], sigma["y_mm"], sigma["z_mm"])
+    worst_deg = max((v for k, v in sigma.items() if k.endswith("_deg") and np.isfinite(v)), default=0.0)
+    uncertainty_ok = bool(worst_mm <= max_sigma_mm and worst_deg <= max_sigma_deg)
+    if not uncertainty_ok:
+        flags.append("uncertainty")
+    n_vis = len(best["es"].index)
+    if n_vis < 60:
+        flags.append("few_edges")
+    vis_frac = 1.0
+    if occluders_cam:
+        es_free = visible_edge_samples(model, T_cam_table @ T_table_obj, K, dist, W, H, occlusion_test=True,
+                                       subset=sub_fine)
+        vis_frac = n_vis / max(len(es_free.index), 1)
+    inlier_frac = float(inl.sum()) / max(n_vis, 1)
+    supported_px = best["support_px"]
+    unexplained = _unexplained_edges(eimg, model, T_cam_table @ T_table_obj, K, dist)
+    height = float(transform_points(T_table_obj @ inv(model.resting_states[st].T_rest_obj), np.zeros((1, 3)))[0, 2])
+    timings["verify"] = (time.perf_counter() - t) * 1e3
+    timings["total"] = (time.perf_counter() - t_all) * 1e3
+    return ObjectPose(
+        model_name=name, T_cam_obj=T_cam_table @ T_table_obj, T_table_obj=T_table_obj, resting_state=st,
+        score=float(best["score"]), inlier_edge_fraction=min(1.0, inlier_frac), residual_px=rms,
+        visible_fraction=float(vis_frac), n_edge_samples=int(info["n_used"]), sigma=sigma, tilt_deg=tilt,
+        tilt_sigma_deg=tilt_sigma, T_table_obj_6dof=T6, unexplained_fraction=unexplained,
+        supported_edge_px=supported_px,
+        uncertainty_ok=uncertainty_ok, height_offset_mm=height, margin=float(margin), runner_up_score=float(runner),
+        distinctiveness=distinct_drop,
+        equivalent_poses=equivalent, datum_ambiguous=ambiguous_datum, datum_note=note, flags=tuple(flags),
+        timings_ms=dict(timings))
+
+
+def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, min_score: float = 0.6,
+              min_margin: float = 0.1, gamma: float = 2.2, n_full: int = 8, **locate_kw) -> Recognition:
+    """Which of ``candidates`` are in the image?
+
+    Every candidate goes through the search and the planar fit (stages 1 and 2 of
+    :func:`locate_object`); the ``n_full`` best by that coarse score are located completely and
+    ranked by their verification score, the others keep their coarse score ("coarse only").
+    A candidate is accepted when its score reaches ``min_score`` and no other candidate at the same
+    place (centres closer than half the larger diameter) explains clearly more image edges
+    (``supported_edge_px`` 25 % higher) or, explaining about as much, scores within ``min_margin``.
+    Different objects at different places can all be accepted (a workpiece and its clamps).
+    Nothing accepted: ``reason`` starts with "not recognised:" and names the top candidates.
+    """
+    t0 = time.perf_counter()
+    K = np.asarray(K, dtype=float)
+    dist = np.zeros(5) if dist is None else np.asarray(dist, dtype=float).ravel()
+    T_cam_table = check_pose(T_cam_table, "T_cam_table")
+    eimg = prepare_image(image, gamma=gamma)
+    known = locate_kw.pop("known_models", ())
+    if known:
+        eimg = mask_known_edges(eimg, [(m, T_cam_table @ np.asarray(T, float)) for m, T in known], K, dist)
+    search_kw = {k: locate_kw[k] for k in ("height_offsets_mm", "resting_states", "n_starts", "n_planar")
+                 if k in locate_kw}
+    coarse = []
+    for m in candidates:
+        found = _search(eimg, K, dist, T_cam_table, m, **search_kw)
+        coarse.append(0.0 if isinstance(found, str) or not found[0] else float(found[0][0].score))
+    order = np.argsort(-np.asarray(coarse), kind="stable")
+    res = []
+    for rank, i in enumerate(order):
+        m = candidates[i]
+        if rank < n_full:
+            r = locate_object(None, K, dist, T_cam_table, m, edge_image=eimg, min_score=0.0, min_margin=0.0,
+                              **locate_kw)
+        else:
+            r = ObjectFailure(model_name=m.name, kind="not_found", reason="coarse only", best_score=coarse[i],
+                              candidates=(), timings_ms={})
+        res.append((m, r))
+
+    def score(r):
+        return r.score if isinstance(r, ObjectPose) else r.best_score
+
+    res.sort(key=lambda mr: -score(mr[1]))
+    accepted = []
+    ranked = []
+    for i, (m, r) in enumerate(res):
+        ok = isinstance(r, ObjectPose) and r.score >= min_score
+        reason = ""
+        if isinstance(r, ObjectPose) and not ok:
+            reason = f"score {r.score:.0%} below {min_score:.0%}"
+        elif isinstance(r, ObjectPose):
+            c_i = transform_points(r.T_table_obj, m.center_obj[None])[0]
+            for j, (m2, r2) in enumerate(res):
+                if j == i or not isinstance(r2, ObjectPose) or r2.score < min_score:
+                    continue
+                c_j = transform_points(r2.T_table_obj, m2.center_obj[None])[0]
+                if np.linalg.norm(c_i[:2] - c_j[:2]) >= 0.5 * max(m.diameter_mm, m2.diameter_mm):
+                    continue            # different places: both may be there (workpiece and clamp)
+                if r2.supported_edge_px > 1.25 * r.supported_edge_px:
+                    ok = False          # e.g. a small block fitted into a bigger part's edges
+                    reason = (f"{m2.name} explains more of the image at the same place "
+                              f"({r2.supported_edge_px:.0f} px of edges vs {r.supported_edge_px:.0f} px)")
+                    break
+                if r.supported_edge_px <= 1.25 * r2.supported_edge_px and r.score - r2.score < min_margin:
+                    ok = False
+                    reason = (f"{m2.name} fits the same place almost as well "
+                              f"({r.score:.0%} vs {r2.score:.0%})")
+                    break
+        else:
+            reason = r.reason
+        ranked.append({"model": m.name, "score": round(float(score(r)), 4), "ok": bool(ok), "reason": reason})
+        if ok:
+            accepted.append(r)
+    ranked.sort(key=lambda d: (not d["ok"], -d["score"]))
+    reason = ""
+    if not accepted:
+        top = ", ".join(f"{d['model']} {d['score']:.0%}" for d in ranked[:3])
+        reason = f"not recognised: no candidate reached {min_score:.0%} with a margin of {min_margin:.0%} (top: {top})"
+    return Recognition(accepted=tuple(accepted), ranked=tuple(ranked), reason=reason,
+                       timings_ms={"total": (time.perf_counter() - t0) * 1e3})
+
+
+def draw_object(image: np.ndarray, K, dist, pose: ObjectPose, model: PreparedModel,
+                color=(0, 255, 0), T_cam_table: np.ndarray | None = None) -> np.ndarray:
+    """BGR copy of ``image`` with the model's visible edges at ``pose`` (supported or not) drawn,
+    its name, score and position; for a failure, its best candidate in red with the reason."""
+    out = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    H, W = out.shape[:2]
+    dist = np.zeros(5) if dist is None else np.asarray(dist, float)
+    if isinstance(pose, ObjectPose):
+        T_cam_obj, label, col = pose.T_cam_obj, (f"{pose.model_name} {pose.score:.0%} "
+                                                 f"x{pose.T_table_obj[0, 3]:.1f} y{pose.T_table_obj[1, 3]:.1f} "
+                                                 f"C{np.degrees(np.arctan2(pose.T_table_obj[1, 0], pose.T_table_obj[0, 0])):.2f}"), color
+    else:
+        if not pose.candidates or T_cam_table is None:
+            cv2.putText(out, pose.reason[:120], (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 255), 2)
+            return out
+        T_cam_obj = np.asarray(T_cam_table) @ np.asarray(pose.candidates[0]["T_table_obj"])
+        label, col = pose.reason[:120], (0, 0, 255)
+    es = visible_edge_samples(model, T_cam_obj, np.asarray(K, float), dist, W, H, occlusion_test=True)
+    for u, v in es.uv_px:
+        cv2.circle(out, (int(round(u * 4)), int(round(v * 4))), 4, col, -1, lineType=cv2.LINE_AA, shift=2)
+    if len(es.uv_px):
+        u0, v0 = es.uv_px.min(axis=0)
+        cv2.putText(out, label, (int(u0), max(15, int(v0) - 8)), cv2.FONT_HERSHEY_SIMPLEX, 0.5, col, 1,
+                    cv2.LINE_AA)
+    return out
