@@ -1,0 +1,105 @@
+"""/api/v1/auth (sign in/out), /api/v1/users and /api/v1/apikeys (admin)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from fastapi import APIRouter, HTTPException, Request, Response, status
+from pydantic import BaseModel, Field
+
+from app.api.deps import SESSION_COOKIE, AdminPrincipal, CurrentPrincipal, SessionDep
+from app.services import access
+
+router = APIRouter(tags=["auth"])
+
+
+class LoginBody(BaseModel):
+    name: str = Field(examples=["anna"])
+    password: str
+
+
+class LoginAnswer(BaseModel):
+    name: str
+    role: str
+    token: str = Field(description="Session token; also set as an HttpOnly cookie")
+    expires_at: datetime
+
+
+class Me(BaseModel):
+    name: str
+    kind: str
+    role: str
+
+
+class UserCreate(BaseModel):
+    name: str = Field(min_length=1, max_length=100)
+    role: str = Field(examples=["operator"])
+    password: str | None = Field(default=None, description="Default: a random password, answered once")
+
+
+class UserCreated(BaseModel):
+    id: int
+    name: str
+    role: str
+    password: str = Field(description="Shown once")
+
+
+class ApiKeyCreate(BaseModel):
+    name: str = Field(default="", max_length=100, examples=["MES line 2"])
+    scope: str = Field(examples=["mes"], description="mes: create setups, read results | admin")
+
+
+class ApiKeyCreated(BaseModel):
+    id: int
+    name: str
+    scope: str
+    key: str = Field(description="Shown once; send as 'Authorization: Bearer <key>'")
+
+
+@router.post("/auth/login", response_model=LoginAnswer, summary="Sign in (operator or admin)")
+def login(session: SessionDep, body: LoginBody, response: Response) -> LoginAnswer:
+    found = access.login(session, body.name, body.password)
+    if found is None:
+        raise HTTPException(401, "wrong name or password")
+    user, token, expires = found
+    response.set_cookie(SESSION_COOKIE, token, httponly=True, samesite="strict",
+                        max_age=access.SESSION_HOURS * 3600)
+    return LoginAnswer(name=user.name, role=user.role, token=token, expires_at=expires)
+
+
+@router.post("/auth/logout", status_code=status.HTTP_204_NO_CONTENT, response_class=Response, summary="Sign out")
+def logout(session: SessionDep, request: Request) -> Response:
+    token = request.cookies.get(SESSION_COOKIE)
+    auth = request.headers.get("authorization", "")
+    if auth.lower().startswith("bearer "):
+        token = auth[7:]
+    if token:
+        access.logout(session, token)
+    response = Response(status_code=status.HTTP_204_NO_CONTENT)
+    response.delete_cookie(SESSION_COOKIE)
+    return response
+
+
+@router.get("/auth/me", response_model=Me, summary="Who am I")
+def me(principal: CurrentPrincipal) -> Me:
+    return Me(name=principal.name, kind=principal.kind, role=principal.role)
+
+
+@router.post("/users", status_code=status.HTTP_201_CREATED, response_model=UserCreated, summary="Add a user (admin)")
+def create_user(session: SessionDep, _admin: AdminPrincipal, body: UserCreate) -> UserCreated:
+    user, password = access.create_user(session, body.name, body.role, body.password)
+    return UserCreated(id=user.id, name=user.name, role=user.role, password=password)
+
+
+@router.post("/apikeys", status_code=status.HTTP_201_CREATED, response_model=ApiKeyCreated,
+             summary="Create an API key (admin)")
+def create_api_key(session: SessionDep, _admin: AdminPrincipal, body: ApiKeyCreate) -> ApiKeyCreated:
+    row, secret = access.create_api_key(session, body.name, body.scope)
+    return ApiKeyCreated(id=row.id, name=row.name, scope=row.scope, key=secret)
+
+
+@router.delete("/apikeys/{key_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
+               summary="Revoke an API key (admin)")
+def revoke_api_key(session: SessionDep, _admin: AdminPrincipal, key_id: int) -> Response:
+    access.revoke_api_key(session, key_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,0 +1,113 @@
+"""/api/v1/machines: machine tools with their table, cameras and controller settings."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from fastapi import APIRouter, Depends, Response, status
+from pydantic import BaseModel, Field
+
+from app.api.deps import AdminPrincipal, SessionDep, get_principal
+from app.services import machines as svc
+
+router = APIRouter(prefix="/machines", tags=["machines"], dependencies=[Depends(get_principal)])
+
+IDENTITY = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+CONTROLLER_DOC = ('{"kind": "linuxcnc", "host": "127.0.0.1", "port": 5007} | '
+                  '{"kind": "opcua", "endpoint": "opc.tcp://...", "nodes": {...}} | '
+                  '{"kind": "file", "dialect": "heidenhain", "folder": "/srv/nc"}')
+
+
+class Travel(BaseModel):
+    x: list[float] = Field(min_length=2, max_length=2, examples=[[0, 1000]])
+    y: list[float] = Field(min_length=2, max_length=2, examples=[[0, 500]])
+    z: list[float] = Field(min_length=2, max_length=2, examples=[[-500, 0]])
+
+
+class MachineCreate(BaseModel):
+    name: str = Field(min_length=1, max_length=200, examples=["Mill 3"])
+    table_model_id: int = Field(description="A library model of kind table with a fiducial layout")
+    table_revision: int | None = Field(default=None, description="Default: the model's current revision")
+    T_machine_table: list[list[float]] = Field(default_factory=lambda: IDENTITY,
+                                               description="Pose of the table frame in machine coordinates, mm")
+    travel_mm: Travel
+    camera_ids: list[int] = Field(default_factory=list)
+    controller: dict[str, Any] | None = Field(default=None, description=CONTROLLER_DOC)
+
+
+class MachineUpdate(BaseModel):
+    name: str | None = Field(default=None, min_length=1, max_length=200)
+    table_model_id: int | None = None
+    table_revision: int | None = None
+    T_machine_table: list[list[float]] | None = None
+    travel_mm: Travel | None = None
+    camera_ids: list[int] | None = None
+    controller: dict[str, Any] | None = Field(default=None, description=CONTROLLER_DOC)
+
+
+class MachinePublic(BaseModel):
+    id: int
+    name: str
+    table_model_id: int
+    table_revision: int
+    T_machine_table: list[list[float]]
+    travel_mm: dict
+    camera_ids: list[int]
+    controller: dict | None
+    created_at: datetime
+
+
+SECRET_KEYS = ("password", "connect_password", "enable_password")
+
+
+def _public(m) -> MachinePublic:
+    """Controller passwords never leave the service."""
+    pub = MachinePublic.model_validate(m, from_attributes=True)
+    if pub.controller:
+        pub.controller = {k: ("***" if k in SECRET_KEYS and v else v) for k, v in pub.controller.items()}
+    return pub
+
+
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=MachinePublic, summary="Register a machine")
+def create_machine(session: SessionDep, _admin: AdminPrincipal, body: MachineCreate) -> MachinePublic:
+    return _public(svc.create_machine(session, **body.model_dump()))
+
+
+@router.get("", response_model=list[MachinePublic], summary="List machines")
+def list_machines(session: SessionDep) -> list[MachinePublic]:
+    return [_public(m) for m in svc.list_machines(session)]
+
+
+@router.get("/{machine_id}", response_model=MachinePublic, summary="One machine")
+def get_machine(session: SessionDep, machine_id: int) -> MachinePublic:
+    return _public(svc.get_machine(session, machine_id))
+
+
+@router.patch("/{machine_id}", response_model=MachinePublic, summary="Change a machine")
+def update_machine(session: SessionDep, _admin: AdminPrincipal, machine_id: int, body: MachineUpdate) -> MachinePublic:
+    return _public(svc.update_machine(session, machine_id, body.model_dump(exclude_unset=True)))
+
+
+class OffsetPublic(BaseModel):
+    slot: str
+    x_mm: float
+    y_mm: float
+    z_mm: float
+    c_deg: float
+
+
+@router.get("/{machine_id}/offsets/{slot}", response_model=OffsetPublic,
+            summary="The controller's current work offset in a slot (read live)",
+            responses={502: {"description": "controller unreachable"}})
+def read_offset(session: SessionDep, machine_id: int, slot: str) -> OffsetPublic:
+    from app.services.export import read_current_offset
+
+    return OffsetPublic(slot=slot.upper(), **read_current_offset(session, machine_id, slot.upper()).as_dict())
+
+
+@router.delete("/{machine_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
+               summary="Remove a machine (soft delete)")
+def delete_machine(session: SessionDep, _admin: AdminPrincipal, machine_id: int) -> Response:
+    svc.delete_machine(session, machine_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,0 +1,137 @@
+"""/api/v1/models: the CAD model library (workpieces, clamps, tables)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile, status
+
+from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
+from app.api.schemas import ModelPublic, Page, RevisionPublic
+from app.services import library
+from app.store.models import LibraryModel, ModelRevision
+
+router = APIRouter(prefix="/models", tags=["models"], dependencies=[Depends(get_principal)])
+
+DATUM_EXAMPLE = "[[1,0,0,0],[0,1,0,0],[0,0,1,25],[0,0,0,1]]"
+
+
+def to_public(model: LibraryModel, rev: ModelRevision) -> ModelPublic:
+    q = f"?revision={rev.revision}"
+    return ModelPublic(
+        **model.model_dump(include=set(ModelPublic.model_fields) - {"revision", "mesh_url", "thumbnail_url"}),
+        revision=RevisionPublic.model_validate(rev, from_attributes=True),
+        mesh_url=f"/api/v1/models/{model.id}/mesh.glb{q}",
+        thumbnail_url=f"/api/v1/models/{model.id}/thumbnail.png{q}",
+    )
+
+
+async def _read_upload(file: UploadFile, max_bytes: int) -> bytes:
+    # Read one byte past the limit so an oversize upload is refused without reading it all.
+    data = await file.read(max_bytes + 1)
+    return data
+
+
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=ModelPublic,
+             summary="Upload a CAD model (STL, OBJ, PLY, GLB, STEP/STP)")
+async def create_model(
+    session: SessionDep, files: FilesDep, settings: SettingsDep, _admin: AdminPrincipal,
+    file: Annotated[UploadFile, File(description="The CAD file")],
+    kind: Annotated[str, Form(description="workpiece | clamp | table", examples=["workpiece"])],
+    name: Annotated[str, Form(examples=["Bracket 4711"])],
+    units: Annotated[str, Form(description="Units of the file: mm | inch (stored in mm)")] = "mm",
+    T_obj_datum: Annotated[str | None, Form(description="4x4 JSON, pose of the datum in the model frame (mm)",
+                                            examples=[DATUM_EXAMPLE])] = None,
+    fiducials: Annotated[str | None, Form(description="Fiducial layout JSON (DESIGN format)")] = None,
+    description: Annotated[str, Form()] = "",
+) -> ModelPublic:
+    max_bytes = int(settings.max_upload_mb * 1e6)
+    data = await _read_upload(file, max_bytes)
+    model = library.create_model(session, files, data=data, filename=file.filename or "upload", kind=kind,
+                                 name=name, units=units, T_obj_datum=T_obj_datum, fiducials=fiducials,
+                                 description=description, max_bytes=max_bytes, max_faces=settings.max_mesh_faces)
+    return to_public(model, library.get_revision(session, model.id))
+
+
+@router.get("", response_model=Page[ModelPublic], summary="List models (filter by kind and name)")
+def list_models(
+    session: SessionDep,
+    kind: Annotated[Literal["workpiece", "clamp", "table"] | None, Query()] = None,
+    name: Annotated[str | None, Query(description="Case-insensitive part of the name")] = None,
+    include_deleted: bool = False,
+    offset: Annotated[int, Query(ge=0)] = 0,
+    limit: Annotated[int, Query(ge=1, le=500)] = 100,
+) -> Page[ModelPublic]:
+    rows, count = library.list_models(session, kind=kind, name=name, include_deleted=include_deleted,
+                                      offset=offset, limit=limit)
+    return Page(data=[to_public(m, library.get_revision(session, m.id)) for m in rows], count=count)
+
+
+@router.get("/{model_id}", response_model=ModelPublic, summary="One model at its current (or a given) revision")
+def get_model(session: SessionDep, model_id: int, revision: Annotated[int | None, Query(ge=1)] = None) -> ModelPublic:
+    return to_public(library.get_model(session, model_id), library.get_revision(session, model_id, revision))
+
+
+@router.get("/{model_id}/revisions", response_model=list[RevisionPublic], summary="All revisions of a model")
+def list_revisions(session: SessionDep, model_id: int) -> list[RevisionPublic]:
+    return [RevisionPublic.model_validate(r, from_attributes=True) for r in library.list_revisions(session, model_id)]
+
+
+@router.post("/{model_id}/revisions", status_code=status.HTTP_201_CREATED, response_model=ModelPublic,
+             summary="Make a new revision: new geometry, units, datum frame or fiducials")
+async def add_revision(
+    session: SessionDep, files: FilesDep, settings: SettingsDep, _admin: AdminPrincipal, model_id: int,
+    file: Annotated[UploadFile | None, File()] = None,
+    units: Annotated[str | None, Form()] = None,
+    T_obj_datum: Annotated[str | None, Form(description="4x4 JSON; the text 'null' removes the datum",
+                                            examples=[DATUM_EXAMPLE])] = None,
+    fiducials: Annotated[str | None, Form(description="Layout JSON; 'null' removes it")] = None,
+    note: Annotated[str, Form()] = "",
+) -> ModelPublic:
+    max_bytes = int(settings.max_upload_mb * 1e6)
+    kwargs: dict = {}
+    if file is not None and file.filename:
+        kwargs.update(data=await _read_upload(file, max_bytes), filename=file.filename)
+    if T_obj_datum is not None:
+        kwargs["T_obj_datum"] = None if T_obj_datum.strip() == "null" else T_obj_datum
+    if fiducials is not None:
+        kwargs["fiducials"] = None if fiducials.strip() == "null" else fiducials
+    rev = library.add_revision(session, files, model_id, units=units, note=note, max_bytes=max_bytes,
+                               max_faces=settings.max_mesh_faces, **kwargs)
+    return to_public(library.get_model(session, model_id), rev)
+
+
+def _file_response(files, sha: str, media_type: str, filename: str) -> Response:
+    return Response(files.read(sha), media_type=media_type,
+                    headers={"Content-Disposition": f'inline; filename="{filename}"', "ETag": f'"{sha}"',
+                             "Cache-Control": "public, max-age=31536000, immutable"})
+
+
+@router.get("/{model_id}/mesh.glb", response_class=Response, summary="Normalised mesh (GLB, mm)",
+            responses={200: {"content": {"model/gltf-binary": {}}}})
+def get_mesh(session: SessionDep, files: FilesDep, model_id: int,
+             revision: Annotated[int | None, Query(ge=1)] = None) -> Response:
+    rev = library.get_revision(session, model_id, revision)
+    return _file_response(files, rev.glb_sha256, "model/gltf-binary", f"model{model_id}-r{rev.revision}.glb")
+
+
+@router.get("/{model_id}/source", response_class=Response, summary="The original uploaded file")
+def get_source(session: SessionDep, files: FilesDep, model_id: int,
+               revision: Annotated[int | None, Query(ge=1)] = None) -> Response:
+    rev = library.get_revision(session, model_id, revision)
+    return _file_response(files, rev.source_sha256, "application/octet-stream", rev.source_filename)
+
+
+@router.get("/{model_id}/thumbnail.png", response_class=Response, summary="Thumbnail (PNG)",
+            responses={200: {"content": {"image/png": {}}}})
+def get_thumbnail(session: SessionDep, files: FilesDep, model_id: int,
+                  revision: Annotated[int | None, Query(ge=1)] = None) -> Response:
+    rev = library.get_revision(session, model_id, revision)
+    return _file_response(files, rev.thumbnail_sha256, "image/png", f"model{model_id}-r{rev.revision}.png")
+
+
+@router.delete("/{model_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
+               summary="Soft delete: hidden from lists, revisions kept for reproducibility")
+def delete_model(session: SessionDep, _admin: AdminPrincipal, model_id: int) -> Response:
+    library.soft_delete(session, model_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,0 +1,57 @@
+"""/api/v1/planning: collision-safe travel paths; /api/v1/setups/{id}/probing-program."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Depends, Query, Request, Response
+from pydantic import BaseModel, Field
+
+from app.api.deps import FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal
+from app.services import planning as svc
+
+router = APIRouter(tags=["planning"], dependencies=[Depends(get_principal)])
+
+EXAMPLE = {"points": [[0, 0, 0], [20, 10, -6], [40, 20, -23]],
+           "probe": {"working_distance_mm": 30, "clearance_mm": 5},
+           "obstacles": {"part_top_mm": 6}, "method": "reference"}
+
+
+class PlanBody(BaseModel):
+    points: list[list[float]] = Field(description="Focal-plane positions [x, y, z] in the table frame, mm")
+    probe: dict[str, float] = Field(description="working_distance_mm, clearance_mm, radius_mm, length_mm")
+    obstacles: dict[str, Any] = Field(description="One of: per_move_mm, part_top_mm, regions (+ priority), "
+                                                  "setup_id (the located scene, inflated by its uncertainty)")
+    method: str = Field(default="reference", description="reference | profile")
+    options: dict[str, Any] = Field(default_factory=dict)
+    speeds: dict[str, float] = Field(default_factory=dict, description="x_mm_min, y_mm_min, z_mm_min")
+
+    model_config = {"json_schema_extra": {"examples": [EXAMPLE]}}
+
+
+@router.post("/planning/paths", summary="Plan a collision-safe path between measuring points")
+def plan_path(session: SessionDep, files: FilesDep, body: PlanBody) -> dict:
+    return svc.plan(session, files, body.model_dump())
+
+
+@router.get("/setups/{setup_id}/probing-program", response_class=Response,
+            summary="LinuxCNC probing program for the confirmed workpiece (G38.2; dry_run: plain moves)",
+            responses={200: {"content": {"text/plain": {}}}})
+def probing_program(session: SessionDep, files: FilesDep, setup_id: int, dry_run: bool = False,
+                    wcs: str = Query(default="G54")) -> Response:
+    text = svc.probing_program(session, files, setup_id, dry_run=dry_run, wcs=wcs)
+    return Response(text, media_type="text/plain",
+                    headers={"Content-Disposition": f'attachment; filename="setup{setup_id}-probe.ngc"'})
+
+
+@router.post("/setups/{setup_id}/probe-results", summary="Refine the confirmed pose from probing results",
+             description="Body: the LinuxCNC PROBEOPEN log (lines 'X Y Z [A B C U V W]') or JSON [[x, y, z], ...] "
+                         "as text/plain. Answers the setup with a new result revision (confirm it, then export).",
+             openapi_extra={"requestBody": {"content": {"text/plain": {"schema": {"type": "string"}}}}})
+async def probe_results(request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep,
+                        who: OperatorPrincipal, setup_id: int) -> dict:
+    from app.api.routes.setups import to_public
+
+    text = (await request.body()).decode("utf-8", errors="replace")
+    s = svc.apply_probe_results(session, files, settings, setup_id, text, who.label())
+    return to_public(s).model_dump(mode="json")

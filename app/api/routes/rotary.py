@@ -1,0 +1,105 @@
+"""/api/v1/rotary: rotary-axis angular positioning error from images of a circular target."""
+
+from __future__ import annotations
+
+import json
+from datetime import datetime
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
+from pydantic import BaseModel, Field
+
+from app.api.deps import CurrentPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
+from app.services import rotary as svc
+from app.services.errors import Invalid, NotFound, TooLarge
+
+router = APIRouter(prefix="/rotary", tags=["rotary"], dependencies=[Depends(get_principal)])
+
+
+class RotaryRunPublic(BaseModel):
+    id: int
+    camera_id: int | None
+    axis_name: str
+    ok: bool
+    reason: str
+    angles_deg: list[float]
+    result: dict | None = Field(description="measured_deg and error_arcsec per image (first image = 0)")
+    report: dict | None = Field(description="ISO 230-2 figures: per position mean errors, reversal, "
+                                            "repeatability, accuracy (arc-seconds)")
+    files: dict[str, str] = Field(description="report file name -> download URL (CSV, PNG/SVG plot, "
+                                              "compensation PROPOSALS for HEIDENHAIN and Fanuc)")
+    created_at: datetime
+
+
+def _public(run) -> RotaryRunPublic:
+    return RotaryRunPublic(**run.model_dump(exclude={"files"}),
+                           files={name: f"/api/v1/rotary/runs/{run.id}/files/{name}" for name in run.files})
+
+
+def _floats(text: str, what: str) -> list[float]:
+    try:
+        return [float(x) for x in text.replace(";", ",").replace(" ", ",").split(",") if x.strip()]
+    except ValueError:
+        raise Invalid(f"{what}: give numbers separated by commas, got {text!r}") from None
+
+
+@router.post("/runs", status_code=status.HTTP_201_CREATED, response_model=RotaryRunPublic,
+             summary="Measure a run: images of the target at commanded angles (first = zero position)",
+             responses={422: {"description": "bad angles, target, images or camera without intrinsics"}})
+async def create_run(
+    session: SessionDep, files: FilesDep, settings: SettingsDep, who: CurrentPrincipal,
+    camera_id: Annotated[int, Form()],
+    images: Annotated[list[UploadFile], File(description="Images in the order of angles_deg")],
+    angles_deg: Annotated[str, Form(description="Commanded angles, comma-separated", examples=["0,10,20,30"])],
+    target: Annotated[str | None, Form(description='{"groups": [{"center_mm": [x, y], "circle_radii_mm": [r, ...]}], '
+                                                  '"mark_mm": [x, y]}; default: the printable default target')] = None,
+    directions: Annotated[str | None, Form(description="+1/-1 per image; default: inferred")] = None,
+    method: Annotated[str, Form(description="direct (ours) | reference")] = "direct",
+    axis_name: Annotated[str, Form(max_length=10)] = "C",
+) -> RotaryRunPublic:
+    max_bytes = int(settings.max_upload_mb * 1e6)
+    loaded = []
+    for f in images:
+        data = await f.read(max_bytes + 1)
+        if len(data) > max_bytes:
+            raise TooLarge(f"image {f.filename!r} is over {settings.max_upload_mb:.0f} MB")
+        loaded.append((f.filename or f"image{len(loaded)}", data))
+    try:
+        tgt = json.loads(target) if target else None
+    except json.JSONDecodeError as exc:
+        raise Invalid(f"target: not valid JSON ({exc.msg})") from None
+    dirs = [int(d) for d in _floats(directions, "directions")] if directions else None
+    run = svc.run_rotary(session, files, camera_id=camera_id, images=loaded, angles_deg=_floats(angles_deg, "angles_deg"),
+                         target=tgt, method=method, directions=dirs, axis_name=axis_name, by=who.label())
+    return _public(run)
+
+
+@router.get("/runs", response_model=list[RotaryRunPublic], summary="Recent rotary runs")
+def list_runs(session: SessionDep) -> list[RotaryRunPublic]:
+    return [_public(r) for r in svc.list_runs(session)]
+
+
+@router.get("/runs/{run_id}", response_model=RotaryRunPublic, summary="One rotary run")
+def get_run(session: SessionDep, run_id: int) -> RotaryRunPublic:
+    return _public(svc.get_run(session, run_id))
+
+
+@router.get("/runs/{run_id}/files/{name}", response_class=Response, summary="A report file of a run")
+def get_file(session: SessionDep, files: FilesDep, run_id: int, name: str) -> Response:
+    run = svc.get_run(session, run_id)
+    if name not in run.files:
+        raise NotFound(f"rotary run {run_id} has no file {name!r}; it has {', '.join(sorted(run.files)) or 'none'}")
+    data = files.read(run.files[name])
+    media = svc.MEDIA.get("." + name.rsplit(".", 1)[-1].lower(), "text/plain")
+    return Response(data, media_type=media, headers={"Content-Disposition": f'inline; filename="{name}"'})
+
+
+@router.get("/target.{fmt}", response_class=Response, summary="The printable default target at true scale")
+def default_target_file(fmt: str) -> Response:
+    from app.vision.rotary_target import default_target, target_pdf, target_svg
+
+    if fmt == "pdf":
+        return Response(target_pdf(default_target()), media_type="application/pdf")
+    if fmt == "svg":
+        return Response(target_svg(default_target()), media_type="image/svg+xml")
+    raise NotFound("target format must be pdf or svg")

@@ -1,0 +1,266 @@
+"""/api/v1/setups: one image -> located table and objects -> (later) confirm and export."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from datetime import datetime
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
+from fastapi.responses import StreamingResponse
+from pydantic import BaseModel, Field
+
+from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal
+from app.services import setups as svc
+from app.services.errors import Invalid, NotFound, TooLarge
+from app.store.db import session_scope
+
+router = APIRouter(prefix="/setups", tags=["setups"], dependencies=[Depends(get_principal)])
+
+
+class SetupAccepted(BaseModel):
+    id: int
+    status: str
+    url: str
+    events_url: str
+
+
+class SetupPublic(BaseModel):
+    id: int
+    machine_id: int
+    camera_id: int | None
+    capture_id: int
+    models: list[dict] = Field(description="[{model_id, revision}] asked for; empty means recognition")
+    status: str = Field(description="queued | running | located | failed")
+    reason: str = Field(description="Why it failed, in plain words (empty otherwise)")
+    stages: list[dict] = Field(description="Per stage: name, ok, ms, message, data, image_url")
+    result: dict | None = Field(description="table (T_cam_table, markers used/rejected, rms_px) and objects "
+                                            "(T_cam_obj, T_table_obj, score, uncertainty, ...), mm and degrees")
+    result_revision: int
+    confirmed_revision: int | None
+    confirmed_by: str | None
+    confirmed_at: datetime | None
+    created_at: datetime
+    updated_at: datetime
+    image_url: str
+    overlay_url: str | None
+
+
+def to_public(s) -> SetupPublic:
+    stages = [{**st, "image_url": f"/api/v1/setups/{s.id}/stages/{i}.png" if st.get("image_sha256") else None}
+              for i, st in enumerate(s.stages)]
+    has_overlay = bool(s.result and s.result.get("overlay_sha256"))
+    return SetupPublic(**s.model_dump(exclude={"stages"}), stages=stages, image_url=f"/api/v1/setups/{s.id}/image",
+                       overlay_url=f"/api/v1/setups/{s.id}/overlay.png" if has_overlay else None)
+
+
+def _parse_ids(text: str | None) -> list[int]:
+    if not text:
+        return []
+    try:
+        return [int(x) for x in text.replace(" ", "").split(",") if x]
+    except ValueError:
+        raise Invalid(f"model_ids: give comma-separated integers, got {text!r}") from None
+
+
+@router.post("", status_code=status.HTTP_202_ACCEPTED, response_model=SetupAccepted,
+             summary="Start a setup from an uploaded image or a frame grabbed from the camera",
+             responses={422: {"description": "unknown machine/camera/model, camera without intrinsics, bad image"}})
+async def create_setup(
+    request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep, who: CurrentPrincipal,
+    machine_id: Annotated[int, Form(examples=[1])],
+    camera_id: Annotated[int | None, Form(description="Default: the machine's first camera")] = None,
+    model_ids: Annotated[str | None, Form(description="Comma-separated library model ids; empty = recognise",
+                                          examples=["3,5"])] = None,
+    grab: Annotated[bool, Form(description="Grab the image from the camera's source")] = False,
+    image: Annotated[UploadFile | None, File(description="JPEG/PNG of table and workpiece")] = None,
+) -> SetupAccepted:
+    data = None
+    if image is not None and image.filename:
+        max_bytes = int(settings.max_upload_mb * 1e6)
+        data = await image.read(max_bytes + 1)
+        if len(data) > max_bytes:
+            raise TooLarge(f"image is over {settings.max_upload_mb:.0f} MB")
+    setup = svc.create_setup(session, files, machine_id=machine_id, camera_id=camera_id,
+                             model_ids=_parse_ids(model_ids), image=data, grab=grab, created_by=who.label())
+    session.commit()
+    request.app.state.jobs.submit(svc.run_setup_job, setup.id)
+    return SetupAccepted(id=setup.id, status=setup.status, url=f"/api/v1/setups/{setup.id}",
+                         events_url=f"/api/v1/setups/{setup.id}/events")
+
+
+@router.get("", response_model=list[SetupPublic], summary="Recent setups (optionally of one machine)")
+def list_setups(session: SessionDep, machine_id: int | None = None,
+                limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[SetupPublic]:
+    return [to_public(s) for s in svc.list_setups(session, machine_id=machine_id, limit=limit)]
+
+
+@router.get("/{setup_id}", response_model=SetupPublic, summary="Status and result of a setup")
+def get_setup(session: SessionDep, setup_id: int) -> SetupPublic:
+    return to_public(svc.get_setup(session, setup_id))
+
+
+@router.get("/{setup_id}/events", summary="Progress as server-sent events (stage, status)",
+            response_class=StreamingResponse, responses={200: {"content": {"text/event-stream": {}}}})
+async def setup_events(request: Request, setup_id: int) -> StreamingResponse:
+    engine = request.app.state.engine
+    with session_scope(engine) as session:
+        svc.get_setup(session, setup_id)  # 404 before the stream starts
+
+    def snapshot() -> tuple[str, list[dict], str]:
+        with session_scope(engine) as session:
+            s = svc.get_setup(session, setup_id)
+            return s.status, list(s.stages), s.reason
+
+    async def stream():
+        sent_stages, last_status = 0, None
+        for _ in range(20 * 60 * 10):  # at most 10 minutes, then the client reconnects
+            if await request.is_disconnected():
+                return
+            st, stages, reason = await asyncio.to_thread(snapshot)
+            for i in range(sent_stages, len(stages)):
+                stage = {k: v for k, v in stages[i].items() if k != "data"}
+                yield f"event: stage\ndata: {json.dumps({'index': i, **stage})}\n\n"
+            sent_stages = len(stages)
+            if st != last_status:
+                yield f"event: status\ndata: {json.dumps({'status': st, 'reason': reason})}\n\n"
+                last_status = st
+            if st in svc.FINAL:
+                return
+            await asyncio.sleep(0.1)
+
+    return StreamingResponse(stream(), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+def _png(files, sha: str) -> Response:
+    return Response(files.read(sha), media_type="image/png", headers={"Cache-Control": "max-age=3600"})
+
+
+@router.get("/{setup_id}/overlay.png", response_class=Response, summary="Image with fitted edges and markers",
+            responses={200: {"content": {"image/png": {}}}})
+def get_overlay(session: SessionDep, files: FilesDep, setup_id: int) -> Response:
+    s = svc.get_setup(session, setup_id)
+    if not (s.result and s.result.get("overlay_sha256")):
+        raise NotFound(f"setup {setup_id} has no overlay yet (status {s.status})")
+    return _png(files, s.result["overlay_sha256"])
+
+
+@router.get("/{setup_id}/stages/{index}.png", response_class=Response, summary="Picture of one stage",
+            responses={200: {"content": {"image/png": {}}}})
+def get_stage_image(session: SessionDep, files: FilesDep, setup_id: int, index: int) -> Response:
+    s = svc.get_setup(session, setup_id)
+    if not 0 <= index < len(s.stages) or not s.stages[index].get("image_sha256"):
+        raise NotFound(f"setup {setup_id} has no picture for stage {index}")
+    return _png(files, s.stages[index]["image_sha256"])
+
+
+@router.get("/{setup_id}/image", response_class=Response, summary="The captured image",
+            responses={200: {"content": {"image/jpeg": {}}}})
+def get_image(session: SessionDep, files: FilesDep, setup_id: int) -> Response:
+    from app.store.models import Capture
+
+    s = svc.get_setup(session, setup_id)
+    data = files.read(session.get(Capture, s.capture_id).image_sha256)
+    return Response(data, media_type="image/png" if data[:4] == b"\x89PNG" else "image/jpeg")
+
+
+class Nudge(BaseModel):
+    dx_mm: float = 0.0
+    dy_mm: float = 0.0
+    dz_mm: float = 0.0
+    dc_deg: float = Field(default=0.0, description="Rotation about table z through the object's origin")
+
+
+class AdjustBody(BaseModel):
+    object_index: int = Field(ge=0, description="Index into result.objects")
+    T_table_obj: list[list[float]] | None = Field(default=None, description="New pose on the table (4x4, mm)")
+    nudge: Nudge | None = None
+
+
+class RefineBody(BaseModel):
+    object_index: int = Field(ge=0, description="Index into result.objects")
+
+
+@router.post("/{setup_id}/refine", response_model=SetupPublic,
+             summary="Refine from here: re-fit the object's edges starting at its current pose -> new revision",
+             responses={422: {"description": "the fit did not converge from this pose (with the reason)"}})
+def refine(session: SessionDep, files: FilesDep, settings: SettingsDep, who: OperatorPrincipal, setup_id: int,
+           body: RefineBody) -> SetupPublic:
+    return to_public(svc.refine_object(session, files, settings, setup_id, object_index=body.object_index,
+                                       by=who.label()))
+
+
+class ConfirmBody(BaseModel):
+    result_revision: int = Field(ge=1, description="The result revision the operator saw and confirms")
+
+
+@router.post("/{setup_id}/adjust", response_model=SetupPublic, summary="Operator adjustment -> new result revision")
+def adjust(session: SessionDep, files: FilesDep, settings: SettingsDep, who: OperatorPrincipal, setup_id: int,
+           body: AdjustBody) -> SetupPublic:
+    s = svc.adjust_object(session, files, settings, setup_id, object_index=body.object_index,
+                          T_table_obj=body.T_table_obj, nudge=body.nudge.model_dump() if body.nudge else None, by=who.label())
+    return to_public(s)
+
+
+@router.post("/{setup_id}/confirm", response_model=SetupPublic,
+             summary="Confirm the exact result revision (required before any export)",
+             responses={409: {"description": "the revision is not the current one"}})
+def confirm(request: Request, session: SessionDep, who: OperatorPrincipal, setup_id: int,
+            body: ConfirmBody) -> SetupPublic:
+    s = svc.confirm_setup(session, setup_id, result_revision=body.result_revision, by=who.label())
+    session.commit()
+    request.app.state.events.publish("setup.confirmed", {"setup_id": s.id, "result_revision": s.confirmed_revision,
+                                                         "by": s.confirmed_by, "offset": (s.result or {}).get("offset")})
+    return to_public(s)
+
+
+class ExportBody(BaseModel):
+    slot: str = Field(default="G54", examples=["G54"], description="Work offset slot: G54..G59, G59.1..G59.3")
+    acknowledge_change: bool = Field(default=False, description="Accept a change against the controller's "
+                                                                "current offset beyond the configured limit")
+
+
+class ExportPublic(BaseModel):
+    id: int
+    setup_id: int
+    result_revision: int
+    slot: str
+    status: str = Field(description="verified | mismatch | failed | writing")
+    agree: bool = Field(description="Read-back equals the written values within the controller's rounding")
+    written: dict | None
+    read_back: dict | None
+    before: dict | None = Field(description="The slot's values before the write")
+    reason: str
+    actor: str
+    created_at: datetime
+
+
+def export_public(row) -> ExportPublic:
+    return ExportPublic(**row.model_dump(), agree=row.status == "verified")
+
+
+@router.post("/{setup_id}/export", response_model=ExportPublic,
+             summary="Write the confirmed work offset into the controller and read it back",
+             responses={409: {"description": "not confirmed, changed since, or change beyond the limit"},
+                        422: {"description": "implausible (tilt, uncertainty, travel) or no controller"},
+                        502: {"description": "controller unreachable; nothing written"}})
+def export(request: Request, session: SessionDep, settings: SettingsDep, who: OperatorPrincipal, setup_id: int,
+           body: ExportBody) -> ExportPublic:
+    from app.services.export import export_offset
+
+    row = export_offset(session, settings, request.app.state.events, setup_id, slot=body.slot, actor=who.label(),
+                        acknowledge_change=body.acknowledge_change)
+    return export_public(row)
+
+
+@router.get("/{setup_id}/exports", response_model=list[ExportPublic], summary="Exports of a setup")
+def list_exports(session: SessionDep, setup_id: int) -> list[ExportPublic]:
+    from sqlmodel import select
+
+    from app.store.models import Export
+
+    svc.get_setup(session, setup_id)
+    return [export_public(r) for r in session.exec(select(Export).where(Export.setup_id == setup_id)
+                                                   .order_by(Export.id)).all()]

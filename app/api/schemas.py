@@ -1,0 +1,43 @@
+"""What the API returns (Public families). Kept apart from the tables: the API shape is a promise."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Generic, TypeVar
+
+from pydantic import BaseModel, Field
+
+T = TypeVar("T")
+
+
+class Page(BaseModel, Generic[T]):
+    data: list[T]
+    count: int = Field(description="Number of matching rows (before offset/limit).")
+
+
+class RevisionPublic(BaseModel):
+    revision: int
+    source_filename: str
+    source_sha256: str
+    glb_sha256: str
+    units: str = Field(description="Units of the uploaded file; all geometry here is in mm.")
+    T_obj_datum: list[list[float]] | None = Field(description="Pose of the datum (NC zero) in the model frame, mm.")
+    fiducials: dict | None
+    summary: dict[str, Any] = Field(description="Bounding box (mm), face and vertex counts, watertightness.")
+    resting_poses: list[dict[str, Any]] = Field(description="Stable poses on a plane: T_plane_obj and probability.")
+    note: str
+    created_at: datetime
+
+
+class ModelPublic(BaseModel):
+    id: int
+    key: str | None
+    kind: str
+    name: str
+    description: str
+    current_revision: int
+    created_at: datetime
+    deleted_at: datetime | None
+    revision: RevisionPublic = Field(description="The current revision (or the one asked for).")
+    mesh_url: str
+    thumbnail_url: str

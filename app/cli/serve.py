@@ -1,0 +1,32 @@
+"""``setupcam serve``: run the service (migrations and example library at start)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("serve", help="run the web service")
+    p.add_argument("--host", default="127.0.0.1", help="interface to listen on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
+    p.add_argument("--data-dir", help="data folder (overrides SETUPCAM_DATA_DIR)")
+    p.add_argument("--viser-port", type=int, help="port of the 3D viewer (overrides SETUPCAM_VISER_PORT)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from app.config import Settings
+    from app.logging_setup import configure_logging
+    from app.main import create_app
+
+    if args.data_dir:
+        os.environ["SETUPCAM_DATA_DIR"] = args.data_dir
+    if args.viser_port:
+        os.environ["SETUPCAM_VISER_PORT"] = str(args.viser_port)
+    settings = Settings()
+    configure_logging(settings.log_json)
+    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_config=None, access_log=False)
+    return 0

@@ -1,0 +1,159 @@
+"""Camera use cases: register, configure a source, grab a frame, calibrate, accept a calibration."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import cv2
+import numpy as np
+from sqlmodel import Session, col, select
+
+from app.services.errors import Invalid, NotFound, Unavailable
+from app.store.files import FileStore
+from app.store.models import Calibration, Camera, utcnow
+from app.vision.intrinsics import parse_intrinsics
+
+log = logging.getLogger(__name__)
+
+
+def validate_source(source: dict | None) -> dict:
+    from app.sources import make_source
+
+    source = source or {"kind": "upload"}
+    try:
+        make_source(source)
+    except ValueError as exc:
+        raise Invalid(f"source: {exc}") from None
+    return source
+
+
+def validate_intrinsics(intrinsics: dict | None) -> dict | None:
+    if intrinsics is None:
+        return None
+    try:
+        return parse_intrinsics(intrinsics).model_dump()
+    except ValueError as exc:
+        raise Invalid(str(exc)) from None
+
+
+def create_camera(session: Session, *, name: str, intrinsics: dict | None = None, source: dict | None = None) -> Camera:
+    cam = Camera(name=name, intrinsics=validate_intrinsics(intrinsics), source=validate_source(source))
+    session.add(cam)
+    session.flush()
+    return cam
+
+
+def get_camera(session: Session, camera_id: int) -> Camera:
+    cam = session.get(Camera, camera_id)
+    if cam is None or cam.deleted_at is not None:
+        raise NotFound(f"camera {camera_id} not found")
+    return cam
+
+
+def list_cameras(session: Session) -> list[Camera]:
+    return list(session.exec(select(Camera).where(col(Camera.deleted_at).is_(None)).order_by(Camera.id)).all())
+
+
+def update_camera(session: Session, camera_id: int, changes: dict[str, Any]) -> Camera:
+    cam = get_camera(session, camera_id)
+    if "name" in changes:
+        cam.name = changes["name"]
+    if "intrinsics" in changes:
+        cam.intrinsics = validate_intrinsics(changes["intrinsics"])
+    if "source" in changes:
+        cam.source = validate_source(changes["source"])
+    session.add(cam)
+    session.flush()
+    return cam
+
+
+def delete_camera(session: Session, camera_id: int) -> None:
+    cam = get_camera(session, camera_id)
+    cam.deleted_at = utcnow()
+    session.add(cam)
+
+
+def grab_frame(cam: Camera) -> np.ndarray:
+    """One BGR frame from the camera's source; 409 for upload-only cameras, 502 when the source fails."""
+    from app.sources import SourceError, make_source
+
+    if cam.source.get("kind", "upload") == "upload":
+        raise Invalid(f"camera {cam.id} ({cam.name}) has no image source (upload only); "
+                      "configure an HTTP snapshot URL, a folder or an OpenCV device, or upload an image")
+    try:
+        return make_source(cam.source).grab()
+    except SourceError as exc:
+        raise Unavailable(str(exc)) from None
+
+
+def decode_image(data: bytes, what: str = "image") -> np.ndarray:
+    """Decode an uploaded JPEG/PNG/... to BGR; 422 with the reason when it is not an image."""
+    if not data:
+        raise Invalid(f"{what} is empty")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if img is None:
+        raise Invalid(f"{what} is not a readable image (JPEG, PNG, BMP or TIFF expected)")
+    return img
+
+
+def calibrate_camera(session: Session, files: FileStore, camera_id: int, *, images: list[tuple[str, bytes]],
+                     board: dict, fix_aspect_ratio: bool = False,
+                     subpix_half_window_px: int | None = None) -> Calibration:
+    """Calibrate from board images; the run is stored (images included) whether it succeeds or not."""
+    from app.vision import calibration as calib
+
+    cam = get_camera(session, camera_id)
+    if not images:
+        raise Invalid("no images: upload at least 3 views of the board")
+    try:
+        spec = calib.BoardSpec.model_validate(board)
+    except ValueError as exc:
+        raise Invalid(f"board: {_first_error(exc)}") from None
+    decoded = [decode_image(data, f"image {name!r}") for name, data in images]
+    shas = [files.put(session, data, "image/jpeg") for _name, data in images]
+    result = calib.calibrate(decoded, spec, fix_aspect_ratio=fix_aspect_ratio, names=[n for n, _ in images],
+                             subpix_half_window_px=subpix_half_window_px)
+    ok = not isinstance(result, calib.CalibrationFailure)
+    row = Calibration(camera_id=cam.id, board=board, image_sha256=shas, ok=ok,
+                      reason="" if ok else result.reason, result=result.to_dict(),
+                      rms_px=getattr(result, "rms_px", None))
+    session.add(row)
+    session.flush()
+    log.info("calibration", extra={"camera_id": cam.id, "ok": ok, "rms_px": row.rms_px})
+    return row
+
+
+def _first_error(exc: ValueError) -> str:
+    errors = getattr(exc, "errors", None)
+    if callable(errors) and errors():
+        e = errors()[0]
+        where = ".".join(str(p) for p in e.get("loc", ()))
+        return f"{where + ': ' if where else ''}{str(e.get('msg', exc)).removeprefix('Value error, ')}"
+    return str(exc)
+
+
+def get_calibration(session: Session, camera_id: int, calibration_id: int) -> Calibration:
+    row = session.get(Calibration, calibration_id)
+    if row is None or row.camera_id != camera_id:
+        raise NotFound(f"calibration {calibration_id} of camera {camera_id} not found")
+    return row
+
+
+def list_calibrations(session: Session, camera_id: int) -> list[Calibration]:
+    get_camera(session, camera_id)
+    return list(session.exec(select(Calibration).where(Calibration.camera_id == camera_id)
+                             .order_by(Calibration.id)).all())
+
+
+def accept_calibration(session: Session, camera_id: int, calibration_id: int) -> Camera:
+    """Make a successful calibration the camera's intrinsics."""
+    cam = get_camera(session, camera_id)
+    row = get_calibration(session, camera_id, calibration_id)
+    if not row.ok:
+        raise Invalid(f"calibration {calibration_id} failed ({row.reason}); it cannot be accepted")
+    cam.intrinsics = validate_intrinsics(row.result["intrinsics"])
+    row.accepted = True
+    session.add_all([cam, row])
+    session.flush()
+    return cam

@@ -1,0 +1,233 @@
+"""Model library use cases: upload, revise, list, fetch, soft delete, load the example library.
+
+Geometry work (parsing, normalising to mm GLB, resting poses, thumbnail) is in app/geometry/mesh.py;
+this module joins it with the file store and the tables. Revisions are immutable: any change of
+geometry or frames creates revision n+1, and older revisions stay readable.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import asdict, is_dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sqlmodel import Session, col, func, select
+
+from app.geometry import mesh as meshlib
+from app.geometry.fiducial_layout import parse_layout
+from app.geometry.transforms import PoseError, check_pose
+from app.services.errors import Invalid, NotFound, TooLarge
+from app.store.files import FileStore
+from app.store.models import LibraryModel, ModelRevision, utcnow
+
+log = logging.getLogger(__name__)
+
+KINDS = ("workpiece", "clamp", "table")
+UNITS = ("mm", "inch")
+_UNSET: Any = object()
+
+
+def _jsonable(obj: Any) -> Any:
+    if is_dataclass(obj):
+        obj = asdict(obj)
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def check_kind_units(kind: str | None, units: str | None) -> None:
+    if kind is not None and kind not in KINDS:
+        raise Invalid(f"unknown kind {kind!r}; use one of: {', '.join(KINDS)}")
+    if units is not None and units not in UNITS:
+        raise Invalid(f"unknown units {units!r}; use one of: {', '.join(UNITS)}")
+
+
+def parse_frame(value: Any, name: str) -> list[list[float]] | None:
+    """A 4x4 pose from JSON text or nested lists (None stays None); 422 with the reason otherwise."""
+    if value is None or value == "":
+        return None
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except json.JSONDecodeError as exc:
+            raise Invalid(f"{name}: not valid JSON ({exc.msg})") from None
+    try:
+        return check_pose(value, name, tol=1e-5).tolist()
+    except PoseError as exc:
+        raise Invalid(str(exc)) from None
+
+
+def parse_fiducials(value: Any) -> dict | None:
+    if value is None or value == "":
+        return None
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except json.JSONDecodeError as exc:
+            raise Invalid(f"fiducials: not valid JSON ({exc.msg})") from None
+    try:
+        return parse_layout(value).model_dump()
+    except ValueError as exc:
+        raise Invalid(str(exc)) from None
+
+
+def _process_geometry(files: FileStore, session: Session, data: bytes, filename: str, units: str,
+                      max_bytes: int, max_faces: int) -> dict[str, Any]:
+    """Parse and normalise one upload; returns the revision's geometry fields."""
+    if len(data) > max_bytes:
+        raise TooLarge(f"file is {len(data) / 1e6:.1f} MB; the limit is {max_bytes / 1e6:.1f} MB")
+    if not data:
+        raise Invalid("file is empty")
+    try:
+        mesh = meshlib.load_mesh(data, filename, units, max_faces=max_faces)
+    except meshlib.MeshError as exc:
+        raise (TooLarge if getattr(exc, "status", 422) == 413 else Invalid)(str(exc)) from None
+    glb = meshlib.to_glb(mesh)
+    from app.geometry.thumbnail import render_thumbnail  # software renderer; imported lazily
+
+    return {
+        "source_sha256": files.put(session, data, "application/octet-stream"),
+        "glb_sha256": files.put(session, glb, "model/gltf-binary"),
+        "thumbnail_sha256": files.put(session, render_thumbnail(mesh), "image/png"),
+        # STEP carries its own length unit: then the caller's units are not used (units_source "file").
+        "summary": {**_jsonable(meshlib.mesh_summary(mesh)),
+                    "units_source": mesh.metadata.get("units_source", "caller")},
+        "resting_poses": _jsonable(meshlib.resting_poses(mesh)),
+        "source_filename": Path(filename).name[:255],
+        "units": units,
+    }
+
+
+def create_model(session: Session, files: FileStore, *, data: bytes, filename: str, kind: str, name: str,
+                 units: str = "mm", T_obj_datum: Any = None, fiducials: Any = None, description: str = "",
+                 key: str | None = None, max_bytes: int = 64_000_000, max_faces: int = 2_000_000) -> LibraryModel:
+    check_kind_units(kind, units)
+    name = (name or "").strip()
+    if not name:
+        raise Invalid("name must not be empty")
+    datum = parse_frame(T_obj_datum, "T_obj_datum")
+    layout = parse_fiducials(fiducials)
+    if kind == "table" and layout is None:
+        log.info("table model %r uploaded without fiducial layout", name)
+    geometry = _process_geometry(files, session, data, filename, units, max_bytes, max_faces)
+    model = LibraryModel(kind=kind, name=name, description=description, key=key, current_revision=1)
+    session.add(model)
+    session.flush()
+    session.add(ModelRevision(model_id=model.id, revision=1, T_obj_datum=datum, fiducials=layout, **geometry))
+    session.flush()
+    log.info("model created", extra={"model_id": model.id, "model_name": name, "kind": kind})
+    return model
+
+
+def add_revision(session: Session, files: FileStore, model_id: int, *, data: bytes | None = None,
+                 filename: str | None = None, units: str | None = None, T_obj_datum: Any = _UNSET,
+                 fiducials: Any = _UNSET, note: str = "", max_bytes: int = 64_000_000,
+                 max_faces: int = 2_000_000) -> ModelRevision:
+    """Make revision n+1 from revision n with the given changes (geometry and/or frames)."""
+    model = get_model(session, model_id)
+    check_kind_units(None, units)
+    prev = get_revision(session, model_id)
+    fields = prev.model_dump(exclude={"id", "revision", "created_at", "note"})
+    changed = False
+    if data is not None:
+        fields.update(_process_geometry(files, session, data, filename or prev.source_filename,
+                                        units or prev.units, max_bytes, max_faces))
+        changed = True
+    elif units is not None and units != prev.units:
+        # Same file, other units: re-read the stored original.
+        fields.update(_process_geometry(files, session, files.read(prev.source_sha256), prev.source_filename,
+                                        units, max_bytes, max_faces))
+        changed = True
+    if T_obj_datum is not _UNSET:
+        fields["T_obj_datum"] = parse_frame(T_obj_datum, "T_obj_datum")
+        changed = True
+    if fiducials is not _UNSET:
+        fields["fiducials"] = parse_fiducials(fiducials)
+        changed = True
+    if not changed:
+        raise Invalid("nothing to change: give a file, units, T_obj_datum or fiducials")
+    rev = ModelRevision(**{**fields, "revision": model.current_revision + 1, "note": note[:500]})
+    model.current_revision = rev.revision
+    session.add(rev)
+    session.add(model)
+    session.flush()
+    return rev
+
+
+def list_models(session: Session, *, kind: str | None = None, name: str | None = None,
+                include_deleted: bool = False, offset: int = 0, limit: int = 100) -> tuple[list[LibraryModel], int]:
+    check_kind_units(kind, None)
+    q = select(LibraryModel)
+    if kind:
+        q = q.where(LibraryModel.kind == kind)
+    if name:
+        q = q.where(func.lower(LibraryModel.name).contains(name.lower()))
+    if not include_deleted:
+        q = q.where(col(LibraryModel.deleted_at).is_(None))
+    count = session.exec(select(func.count()).select_from(q.subquery())).one()
+    rows = session.exec(q.order_by(LibraryModel.id).offset(offset).limit(limit)).all()
+    return list(rows), int(count)
+
+
+def get_model(session: Session, model_id: int, *, include_deleted: bool = True) -> LibraryModel:
+    model = session.get(LibraryModel, model_id)
+    if model is None or (model.deleted_at is not None and not include_deleted):
+        raise NotFound(f"model {model_id} not found")
+    return model
+
+
+def get_revision(session: Session, model_id: int, revision: int | None = None) -> ModelRevision:
+    model = get_model(session, model_id)
+    rev_no = revision or model.current_revision
+    rev = session.exec(select(ModelRevision).where(ModelRevision.model_id == model_id,
+                                                   ModelRevision.revision == rev_no)).first()
+    if rev is None:
+        raise NotFound(f"model {model_id} has no revision {rev_no}")
+    return rev
+
+
+def list_revisions(session: Session, model_id: int) -> list[ModelRevision]:
+    get_model(session, model_id)
+    return list(session.exec(select(ModelRevision).where(ModelRevision.model_id == model_id)
+                             .order_by(ModelRevision.revision)).all())
+
+
+def soft_delete(session: Session, model_id: int) -> None:
+    """Hide the model from lists; its revisions stay, so setups that used it still reproduce."""
+    model = get_model(session, model_id, include_deleted=False)
+    model.deleted_at = utcnow()
+    session.add(model)
+
+
+def load_example_library(session: Session, files: FileStore, library_dir: Path) -> list[str]:
+    """Load models_library/ once: entries whose key already exists are skipped. Returns keys added."""
+    manifest = Path(library_dir) / "library.json"
+    if not manifest.exists():
+        log.warning("example library not found at %s", manifest)
+        return []
+    from app.geometry.library_manifest import load_library_manifest
+
+    added = []
+    for entry in load_library_manifest(Path(library_dir)):
+        if session.exec(select(LibraryModel).where(LibraryModel.key == entry.key)).first():
+            continue
+        fiducials = None
+        if entry.fiducials:
+            fiducials = json.loads((Path(library_dir) / entry.fiducials).read_text())
+        create_model(session, files, data=(Path(library_dir) / entry.file).read_bytes(), filename=entry.file,
+                     kind=entry.kind, name=entry.name, units=entry.units,
+                     T_obj_datum=_jsonable(entry.T_obj_datum), fiducials=fiducials,
+                     description=entry.description, key=entry.key)
+        added.append(entry.key)
+    if added:
+        log.info("example library loaded", extra={"keys": added})
+    return added

@@ -1,0 +1,111 @@
+"""Machine use cases: a machine = table model (with fiducials) + T_machine_table + travel + cameras + controller."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sqlmodel import Session, col, select
+
+from app.geometry.transforms import PoseError, check_pose
+from app.services import library
+from app.services.errors import Invalid, NotFound
+from app.store.models import Camera, Machine, utcnow
+
+
+def validate_travel(travel: dict) -> dict:
+    out = {}
+    for axis in ("x", "y", "z"):
+        lim = travel.get(axis)
+        if lim is None or len(lim) != 2:
+            raise Invalid(f"travel_mm.{axis}: give [min, max] in mm")
+        lo, hi = float(lim[0]), float(lim[1])
+        if not lo < hi:
+            raise Invalid(f"travel_mm.{axis}: min {lo} must be below max {hi}")
+        out[axis] = [lo, hi]
+    return out
+
+
+def validate_controller(controller: dict | None) -> dict | None:
+    from app.machine import parse_controller_settings
+
+    if controller is None:
+        return None
+    try:
+        return parse_controller_settings(controller).model_dump(mode="json")
+    except ValueError as exc:
+        raise Invalid(f"controller: {exc}") from None
+
+
+def _check_table(session: Session, table_model_id: int, table_revision: int | None) -> int:
+    model = library.get_model(session, table_model_id, include_deleted=False)
+    if model.kind != "table":
+        raise Invalid(f"model {table_model_id} ({model.name}) is a {model.kind}, not a table")
+    rev = library.get_revision(session, table_model_id, table_revision)
+    if not rev.fiducials:
+        raise Invalid(f"table model {table_model_id} revision {rev.revision} has no fiducial layout; "
+                      "add one (POST /api/v1/models/{id}/revisions with fiducials) before using it on a machine")
+    return rev.revision
+
+
+def _check_cameras(session: Session, camera_ids: list[int]) -> list[int]:
+    for cid in camera_ids:
+        cam = session.get(Camera, cid)
+        if cam is None or cam.deleted_at is not None:
+            raise Invalid(f"camera {cid} not found")
+    return list(camera_ids)
+
+
+def _pose(value: Any) -> list[list[float]]:
+    try:
+        return check_pose(value, "T_machine_table", tol=1e-5).tolist()
+    except PoseError as exc:
+        raise Invalid(str(exc)) from None
+
+
+def create_machine(session: Session, *, name: str, table_model_id: int, table_revision: int | None,
+                   T_machine_table: Any, travel_mm: dict, camera_ids: list[int], controller: dict | None) -> Machine:
+    m = Machine(name=name, table_model_id=table_model_id,
+                table_revision=_check_table(session, table_model_id, table_revision),
+                T_machine_table=_pose(T_machine_table), travel_mm=validate_travel(travel_mm),
+                camera_ids=_check_cameras(session, camera_ids), controller=validate_controller(controller))
+    session.add(m)
+    session.flush()
+    return m
+
+
+def get_machine(session: Session, machine_id: int) -> Machine:
+    m = session.get(Machine, machine_id)
+    if m is None or m.deleted_at is not None:
+        raise NotFound(f"machine {machine_id} not found")
+    return m
+
+
+def list_machines(session: Session) -> list[Machine]:
+    return list(session.exec(select(Machine).where(col(Machine.deleted_at).is_(None)).order_by(Machine.id)).all())
+
+
+def update_machine(session: Session, machine_id: int, changes: dict[str, Any]) -> Machine:
+    m = get_machine(session, machine_id)
+    if "name" in changes:
+        m.name = changes["name"]
+    if "table_model_id" in changes or "table_revision" in changes:
+        tid = changes.get("table_model_id", m.table_model_id)
+        m.table_revision = _check_table(session, tid, changes.get("table_revision"))
+        m.table_model_id = tid
+    if "T_machine_table" in changes:
+        m.T_machine_table = _pose(changes["T_machine_table"])
+    if "travel_mm" in changes:
+        m.travel_mm = validate_travel(changes["travel_mm"])
+    if "camera_ids" in changes:
+        m.camera_ids = _check_cameras(session, changes["camera_ids"])
+    if "controller" in changes:
+        m.controller = validate_controller(changes["controller"])
+    session.add(m)
+    session.flush()
+    return m
+
+
+def delete_machine(session: Session, machine_id: int) -> None:
+    m = get_machine(session, machine_id)
+    m.deleted_at = utcnow()
+    session.add(m)

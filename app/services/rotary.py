@@ -1,0 +1,66 @@
+"""Rotary-axis check use case: decode the images, measure the run, evaluate ISO 230-2, keep the report."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+from sqlmodel import Session, col, select
+
+from app.services.cameras import decode_image, get_camera
+from app.services.errors import Invalid, NotFound
+from app.store.files import FileStore
+from app.store.models import RotaryRun
+
+MEDIA = {".csv": "text/csv", ".png": "image/png", ".svg": "image/svg+xml", ".com": "text/plain", ".txt": "text/plain"}
+
+
+def run_rotary(session: Session, files: FileStore, *, camera_id: int, images: list[tuple[str, bytes]],
+               angles_deg: list[float], target: dict | None, method: str = "direct",
+               directions: list[int] | None = None, axis_name: str = "C", by: str | None = None) -> RotaryRun:
+    from app.vision.intrinsics import parse_intrinsics
+    from app.vision.rotary import measure_run
+    from app.vision.rotary_report import write_report
+    from app.vision.rotary_target import TargetError, default_target, target_from_dict
+
+    cam = get_camera(session, camera_id)
+    if not cam.intrinsics:
+        raise Invalid(f"camera {cam.id} ({cam.name}) has no intrinsics; calibrate it first")
+    if len(images) < 2:
+        raise Invalid("a run needs at least 2 images (the first is the zero position)")
+    if len(images) != len(angles_deg):
+        raise Invalid(f"{len(images)} images but {len(angles_deg)} commanded angles; give one angle per image")
+    if directions is not None and len(directions) != len(angles_deg):
+        raise Invalid(f"{len(directions)} directions for {len(angles_deg)} angles")
+    if method not in ("direct", "reference"):
+        raise Invalid(f"unknown method {method!r}; use direct or reference")
+    try:
+        tgt = target_from_dict(target) if target else default_target()
+    except TargetError as exc:
+        raise Invalid(f"target: {exc}") from None
+    decoded = [decode_image(data, f"image {name!r}") for name, data in images]
+    result = measure_run(decoded, angles_deg, parse_intrinsics(cam.intrinsics), tgt, method=method)
+    run = RotaryRun(camera_id=cam.id, axis_name=axis_name, target=tgt.to_dict(), angles_deg=list(angles_deg),
+                    image_sha256=[files.put(session, d, "image/jpeg") for _, d in images], ok=result.ok,
+                    reason=result.reason, result=result.to_dict(), created_by=by)
+    if result.ok:
+        with tempfile.TemporaryDirectory() as tmp:
+            report, paths = write_report(tmp, result.angles_deg, result.measured_deg, result.error_arcsec,
+                                         directions, axis_name=axis_name)
+            run.report = report.to_dict()
+            run.files = {p.name: files.put(session, Path(p).read_bytes(), MEDIA.get(Path(p).suffix.lower(), "text/plain"))
+                         for p in paths}
+    session.add(run)
+    session.flush()
+    return run
+
+
+def get_run(session: Session, run_id: int) -> RotaryRun:
+    run = session.get(RotaryRun, run_id)
+    if run is None:
+        raise NotFound(f"rotary run {run_id} not found")
+    return run
+
+
+def list_runs(session: Session, limit: int = 50) -> list[RotaryRun]:
+    return list(session.exec(select(RotaryRun).order_by(col(RotaryRun.id).desc()).limit(limit)).all())

@@ -1,0 +1,347 @@
+"""Setup use cases: create (upload or grab), run the localisation job, read status and results.
+
+The maths is in app/vision/localize.py (``localize``); this module stores the capture, runs the job
+in a worker, records every stage (numbers, time, picture) on the setup row as it finishes, and keeps
+each result revision.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import cv2
+import numpy as np
+from sqlmodel import Session, col, select
+
+from app.services import library
+from app.services.cameras import decode_image, get_camera, grab_frame
+from app.services.errors import Conflict, Invalid, NotFound
+from app.services.jobs import JobContext
+from app.services.machines import get_machine
+from app.store.db import session_scope
+from app.store.files import FileStore
+from app.store.models import Capture, Setup, utcnow
+
+log = logging.getLogger(__name__)
+
+FINAL = ("located", "failed")
+_PREPARED: dict[str, Any] = {}  # glb sha256 -> PreparedModel (a cache; revisions never change)
+
+
+def png_bytes(image: np.ndarray) -> bytes:
+    return cv2.imencode(".png", image)[1].tobytes()
+
+
+def create_setup(session: Session, files: FileStore, *, machine_id: int, camera_id: int | None,
+                 model_ids: list[int], image: bytes | None, grab: bool, created_by: str | None = None) -> Setup:
+    """Validate everything a job needs up front (4xx with the reason), store the capture, queue the job."""
+    machine = get_machine(session, machine_id)
+    if camera_id is None:
+        if not machine.camera_ids:
+            raise Invalid(f"machine {machine_id} has no camera; give camera_id")
+        camera_id = machine.camera_ids[0]
+    cam = get_camera(session, camera_id)
+    if not cam.intrinsics:
+        raise Invalid(f"camera {cam.id} ({cam.name}) has no intrinsics; calibrate it first "
+                      f"(POST /api/v1/cameras/{cam.id}/calibrations)")
+    models = []
+    for mid in model_ids:
+        m = library.get_model(session, mid, include_deleted=False)
+        if m.kind not in ("workpiece", "clamp"):
+            raise Invalid(f"model {mid} ({m.name}) is a {m.kind}; only workpieces and clamps are located on the table")
+        models.append({"model_id": m.id, "revision": m.current_revision})
+    if image is not None and grab:
+        raise Invalid("give an image or grab=true, not both")
+    if image is None and not grab:
+        raise Invalid("no image: upload one or set grab=true to take one from the camera")
+    if grab:
+        frame, origin = grab_frame(cam), "grab"
+        data = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    else:
+        frame, origin, data = decode_image(image), "upload", image
+    h, w = frame.shape[:2]
+    if (w, h) != (cam.intrinsics["width"], cam.intrinsics["height"]):
+        raise Invalid(f"image is {w} x {h} px but camera {cam.id} is calibrated for "
+                      f"{cam.intrinsics['width']} x {cam.intrinsics['height']} px")
+    cap = Capture(camera_id=cam.id, image_sha256=files.put(session, data, "image/jpeg"), width=w, height=h,
+                  origin=origin)
+    session.add(cap)
+    session.flush()
+    setup = Setup(machine_id=machine.id, camera_id=cam.id, capture_id=cap.id, intrinsics=cam.intrinsics,
+                  models=models, created_by=created_by)
+    session.add(setup)
+    session.flush()
+    return setup
+
+
+def get_setup(session: Session, setup_id: int) -> Setup:
+    s = session.get(Setup, setup_id)
+    if s is None:
+        raise NotFound(f"setup {setup_id} not found")
+    return s
+
+
+def list_setups(session: Session, *, machine_id: int | None = None, limit: int = 50) -> list[Setup]:
+    q = select(Setup)
+    if machine_id is not None:
+        q = q.where(Setup.machine_id == machine_id)
+    return list(session.exec(q.order_by(col(Setup.id).desc()).limit(limit)).all())
+
+
+def unfinished_setup_ids(session: Session) -> list[int]:
+    """Setups a previous run left queued or running (e.g. power cut): they are run again, nothing lost."""
+    return list(session.exec(select(Setup.id).where(col(Setup.status).in_(["queued", "running"]))).all())
+
+
+def _update(ctx: JobContext, setup_id: int, **fields: Any) -> None:
+    with session_scope(ctx.engine) as session:
+        s = session.get(Setup, setup_id)
+        for k, v in fields.items():
+            setattr(s, k, v)
+        s.updated_at = utcnow()
+        session.add(s)
+
+
+def _append_stage(ctx: JobContext, setup_id: int, record: dict) -> None:
+    with session_scope(ctx.engine) as session:
+        s = session.get(Setup, setup_id)
+        s.stages = [*s.stages, record]  # reassign: JSON columns track assignment, not mutation
+        s.updated_at = utcnow()
+        session.add(s)
+
+
+def _candidates(session: Session, files: FileStore, model_refs: list[dict]) -> list:
+    """Library models to look for: the ones asked for, else every workpiece and clamp (recognition)."""
+    from app.geometry.mesh import load_mesh
+    from app.vision.localize import Candidate
+
+    if not model_refs:
+        rows, _ = library.list_models(session, limit=500)
+        model_refs = [{"model_id": m.id, "revision": m.current_revision} for m in rows
+                      if m.kind in ("workpiece", "clamp")]
+    out = []
+    for ref in model_refs:
+        m = library.get_model(session, ref["model_id"])
+        rev = library.get_revision(session, m.id, ref["revision"])
+        # Prepared edge models cost ~1 s each: keep them per geometry file (immutable, content-addressed).
+        prepared = _PREPARED.get(rev.glb_sha256)
+        mesh = prepared.mesh if prepared is not None else load_mesh(files.read(rev.glb_sha256), "model.glb", "mm")
+        cand = Candidate(name=m.name, mesh=mesh, kind=m.kind, model_id=m.id, revision=rev.revision,
+                         T_obj_datum=np.asarray(rev.T_obj_datum) if rev.T_obj_datum else None)
+        if prepared is not None and prepared.name == m.name:
+            cand.prepared = prepared
+        else:
+            _PREPARED[rev.glb_sha256] = cand.prepare()
+        out.append(cand)
+    return out
+
+
+def run_setup_job(ctx: JobContext, setup_id: int) -> None:
+    """The job: localise table and objects in the stored capture; record stages; end located or failed."""
+    from app.vision.localize import localize
+
+    with session_scope(ctx.engine) as session:
+        s = get_setup(session, setup_id)
+        if s.status in FINAL:
+            return
+        machine = get_machine(session, s.machine_id)
+        table_rev = library.get_revision(session, machine.table_model_id, machine.table_revision)
+        layout = table_rev.fiducials
+        capture = session.get(Capture, s.capture_id)
+        image = decode_image(ctx.files.read(capture.image_sha256))
+        recognise = not s.models
+        candidates = _candidates(session, ctx.files, s.models)
+        intr = s.intrinsics
+    _update(ctx, setup_id, status="running", stages=[], reason="")
+    log.info("setup running", extra={"setup_id": setup_id, "candidates": len(candidates)})
+
+    def on_stage(stage) -> None:
+        rec = {"name": stage.name, "ok": stage.ok, "ms": round(stage.ms, 1), "message": stage.message,
+               "data": stage.data}
+        if stage.image is not None:
+            with session_scope(ctx.engine) as session:
+                rec["image_sha256"] = ctx.files.put(session, png_bytes(stage.image), "image/png")
+        _append_stage(ctx, setup_id, rec)
+
+    try:
+        result = localize(image, np.asarray(intr["K"]), np.asarray(intr["dist"]), layout, candidates,
+                          recognise=recognise, on_stage=on_stage)
+    except Exception as exc:  # noqa: BLE001 - a crash must end the job as failed, with a reason
+        log.exception("setup crashed", extra={"setup_id": setup_id})
+        _update(ctx, setup_id, status="failed", reason=f"internal error in localisation ({exc.__class__.__name__}); "
+                                                         "it has been logged")
+        return
+    payload = review_fields(result.to_dict(), machine, ctx.settings)
+    with session_scope(ctx.engine) as session:
+        payload["overlay_sha256"] = ctx.files.put(session, png_bytes(result.overlay), "image/png")
+    if result.ok:
+        _update(ctx, setup_id, status="located", result=payload, result_revision=1)
+    else:
+        _update(ctx, setup_id, status="failed", reason=result.reason, result=payload)
+    if ctx.events is not None:
+        ctx.events.publish("setup.located" if result.ok else "setup.failed",
+                           {"setup_id": setup_id, "reason": result.reason, "objects": table_obj_summary(payload),
+                            "offset": payload.get("offset")})
+    log.info("setup finished", extra={"setup_id": setup_id, "ok": result.ok, "reason": result.reason})
+
+
+def table_obj_summary(result: dict) -> list[dict]:
+    """Per object: name and T_table_obj (for lists and events)."""
+    return [{"name": o["name"], "T_table_obj": o["T_table_obj"]} for o in (result or {}).get("objects", [])]
+
+
+
+# ------------------------------------------------------------------------------ review: offset, adjust, confirm
+def uncertainty_check(obj: dict, max_sigma_mm: float, max_sigma_deg: float) -> tuple[bool, str]:
+    """Pass/fail of one object's 1-sigma against the tolerances, with the reason when it fails."""
+    s = obj.get("sigma") or {}
+    worst = []
+    for k in ("x_mm", "y_mm", "z_mm"):
+        v = s.get(k)
+        if v is None or not np.isfinite(v):
+            worst.append(f"{k[0]} unknown")
+        elif v > max_sigma_mm:
+            worst.append(f"{k[0]} ±{v:.3f} mm > {max_sigma_mm} mm")
+    rz = s.get("rz_deg")
+    if rz is not None and np.isfinite(rz) and rz > max_sigma_deg:
+        worst.append(f"C ±{rz:.3f}° > {max_sigma_deg}°")
+    return (not worst, "; ".join(worst))
+
+
+def proposed_offset(result: dict, T_machine_table: list, max_tilt_deg: float) -> dict | None:
+    """The work offset of the first located workpiece: X, Y, Z, C (+ tilt) in machine coordinates."""
+    from app.geometry.work_offset import work_offset_from_poses
+
+    wp = next((o for o in result.get("objects", []) if o.get("kind") == "workpiece"), None)
+    if wp is None:
+        return None
+    T_obj_datum = np.asarray(wp["T_obj_datum"]) if wp.get("T_obj_datum") else np.eye(4)
+    off = work_offset_from_poses(np.asarray(T_machine_table), np.asarray(wp["T_table_obj"]), T_obj_datum,
+                                 max_tilt_deg=max_tilt_deg)
+    return {"object": wp["name"], "x_mm": off.x_mm, "y_mm": off.y_mm, "z_mm": off.z_mm, "c_deg": off.c_deg,
+            "a_deg": off.a_deg, "b_deg": off.b_deg, "tilt_deg": off.tilt_deg, "ok": off.ok, "reason": off.reason,
+            "T_machine_datum": off.T_machine_datum.tolist(), "datum_defined": bool(wp.get("T_obj_datum"))}
+
+
+def review_fields(result: dict, machine, settings) -> dict:
+    """Add pass/fail per object and the proposed offset to a result (in place) and return it."""
+    for o in result.get("objects", []):
+        ok, why = uncertainty_check(o, settings.max_sigma_mm, settings.max_sigma_deg)
+        o["uncertainty_pass"], o["uncertainty_reason"] = ok, why
+    result["offset"] = proposed_offset(result, machine.T_machine_table, settings.max_tilt_deg)
+    return result
+
+
+def _new_revision(s: Setup, result: dict, note: str, by: str | None) -> None:
+    s.history = [*s.history, {"revision": s.result_revision, "result": s.result}]
+    s.result = {**result, "note": note, "revised_by": by}
+    s.result_revision += 1
+    s.updated_at = utcnow()
+
+
+def _require_located(s: Setup) -> None:
+    if s.status != "located" or not s.result:
+        raise Invalid(f"setup {s.id} is {s.status}; only a located setup can be adjusted or confirmed")
+
+
+def adjust_object(session: Session, files: FileStore, settings, setup_id: int, *, object_index: int,
+                  T_table_obj: list | None = None, nudge: dict | None = None, by: str | None = None) -> Setup:
+    """Operator adjustment: a new pose (or a nudge in table x/y/z mm and C deg) -> result revision n+1."""
+    from app.geometry.transforms import PoseError, check_pose, make_pose, pose_from_xyz_euler
+
+    s = get_setup(session, setup_id)
+    _require_located(s)
+    objs = s.result.get("objects", [])
+    if not 0 <= object_index < len(objs):
+        raise Invalid(f"object_index {object_index} out of range: setup {setup_id} has {len(objs)} objects")
+    old = np.asarray(objs[object_index]["T_table_obj"])
+    if (T_table_obj is None) == (nudge is None):
+        raise Invalid("give either T_table_obj or nudge")
+    if nudge is not None:
+        d = {k: float(nudge.get(k, 0.0)) for k in ("dx_mm", "dy_mm", "dz_mm", "dc_deg")}
+        if max(abs(d["dx_mm"]), abs(d["dy_mm"]), abs(d["dz_mm"])) > 50 or abs(d["dc_deg"]) > 30:
+            raise Invalid("nudge too large: at most 50 mm and 30° per step")
+        centre = old[:3, 3]
+        # Rotate about the object's own origin around table z, then shift along table axes.
+        R = pose_from_xyz_euler(c_deg=d["dc_deg"])
+        new = make_pose(t=centre + [d["dx_mm"], d["dy_mm"], d["dz_mm"]]) @ R @ make_pose(t=-centre) @ old
+    else:
+        try:
+            new = check_pose(T_table_obj, "T_table_obj", tol=1e-5)
+        except PoseError as exc:
+            raise Invalid(str(exc)) from None
+    T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
+    obj = {**objs[object_index], "T_table_obj": new.tolist(), "T_cam_obj": (T_cam_table @ new).tolist(),
+           "adjusted": True, "score": None, "flags": [*objs[object_index].get("flags", []), "adjusted by operator"]}
+    result = {**s.result, "objects": [obj if i == object_index else o for i, o in enumerate(objs)]}
+    machine = get_machine(session, s.machine_id)
+    result = review_fields(result, machine, settings)
+    result["overlay_sha256"] = _redraw(session, files, s, result)
+    _new_revision(s, result, "adjusted", by)
+    session.add(s)
+    session.flush()
+    return s
+
+
+def _redraw(session: Session, files: FileStore, s: Setup, result: dict) -> str:
+    """Overlay for a revised result: table markers from the stored table stage, objects at their poses."""
+    from app.vision.localize import draw_pose_overlay
+
+    table_pic = next((st.get("image_sha256") for st in s.stages if st["name"] == "table markers"), None)
+    sha = table_pic or session.get(Capture, s.capture_id).image_sha256
+    base = cv2.imdecode(np.frombuffer(files.read(sha), np.uint8), cv2.IMREAD_COLOR)
+    cands = {(c.model_id, c.revision): c for c in _candidates(session, files, [
+        {"model_id": o["model_id"], "revision": o["revision"]} for o in result["objects"] if o.get("model_id")])}
+    K, dist = np.asarray(s.intrinsics["K"]), np.asarray(s.intrinsics["dist"])
+    pic = draw_pose_overlay(base, K, dist, result, cands)
+    return files.put(session, png_bytes(pic), "image/png")
+
+
+def confirm_setup(session: Session, setup_id: int, *, result_revision: int, by: str) -> Setup:
+    """Record who confirmed which exact result revision, and when. Only that revision may be exported."""
+    s = get_setup(session, setup_id)
+    _require_located(s)
+    if result_revision != s.result_revision:
+        raise Conflict(f"result revision {result_revision} is not the current one ({s.result_revision}); "
+                       "reload the setup and confirm what you see")
+    s.confirmed_revision, s.confirmed_by, s.confirmed_at = result_revision, by, utcnow()
+    s.updated_at = utcnow()
+    session.add(s)
+    session.flush()
+    return s
+
+
+def refine_object(session: Session, files: FileStore, settings, setup_id: int, *, object_index: int,
+                  by: str | None = None) -> Setup:
+    """"Refine from here": the edge fit started at the object's current (e.g. adjusted) pose -> revision n+1."""
+    from app.vision import object_pose
+    from app.vision.localize import _object_entry
+
+    s = get_setup(session, setup_id)
+    _require_located(s)
+    objs = s.result.get("objects", [])
+    if not 0 <= object_index < len(objs):
+        raise Invalid(f"object_index {object_index} out of range: setup {setup_id} has {len(objs)} objects")
+    obj = objs[object_index]
+    if not obj.get("model_id"):
+        raise Invalid(f"object {obj['name']} has no library model to refine against")
+    (cand,) = _candidates(session, files, [{"model_id": obj["model_id"], "revision": obj["revision"]}])
+    cand.name = obj["name"]
+    image = decode_image(files.read(session.get(Capture, s.capture_id).image_sha256))
+    K, dist = np.asarray(s.intrinsics["K"]), np.asarray(s.intrinsics["dist"])
+    T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
+    pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(),
+                                     start_poses=[np.asarray(obj["T_table_obj"])])
+    if not pose:
+        raise Invalid(f"refinement from this pose failed: {pose.reason}; nudge the part closer to where "
+                      "it is in the picture and try again")
+    entry = _object_entry(cand, pose, tuple(obj.get("colour_bgr") or (0, 220, 0)))
+    entry["flags"] = [*entry.get("flags", []), "refined from the operator's pose"]
+    result = {**s.result, "objects": [entry if i == object_index else o for i, o in enumerate(objs)]}
+    result = review_fields(result, get_machine(session, s.machine_id), settings)
+    result["overlay_sha256"] = _redraw(session, files, s, result)
+    _new_revision(s, result, "refined from the operator's pose", by)
+    session.add(s)
+    session.flush()
+    return s

@@ -1,0 +1,566 @@
+"""Sheet metal on a cutting bed: align (find the sheet), confirm, export X/Y/C, and monitor drift.
+
+The vision is in :mod:`app.vision.sheet` and :mod:`app.vision.drift` (pure); this module joins it to
+the store, the camera sources and the controllers.
+
+Frames: the sheet's offset is found in the bed frame (``T_cam_bed``: origin at a front-left corner of
+the slat field, x along the long side, z up, slat tips at z = 0). The machine's ``T_machine_table`` is
+taken as ``T_machine_bed``, so the work offset written is ``T_machine_bed @ [Rz(c) | (x, y, thickness)]``
+reduced to X, Y and C; the slot's Z is left as the controller has it (height sensing sets it on
+laser/plasma machines).
+
+Safety (DESIGN): nothing is written before an operator confirmed that exact alignment; each write is
+read back and compared and is on the audit log before and after. A monitor of a confirmed alignment
+re-datums (writes a new X, Y, C) when the sheet moved by more than L1 and less than L2: that
+confirmation covers those re-datums, never a move of L2 or more, which stops the machine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from sqlmodel import Session, col, select
+
+from app.machine import ControllerError, WorkOffset, make_controller, slot_number
+from app.services.cameras import decode_image, get_camera, grab_frame
+from app.services.errors import Conflict, Invalid, NotFound, Unavailable
+from app.services.export import audit
+from app.services.machines import get_machine
+from app.store.files import FileStore
+from app.store.models import SheetAlignment, SheetBedPose, SheetMonitor, SheetMonitorEvent, utcnow
+
+log = logging.getLogger(__name__)
+
+#: decisions published as events (``sheet.ok`` would be one per frame: only logged and stored)
+PUBLISHED = ("redatum", "stop", "frame_missing", "corner_not_found")
+RECENT = 200  # decisions kept in memory per monitor for the page
+
+
+# ----------------------------------------------------------------------------------------- bed pose
+def _check_bed_pose(T_cam_bed) -> np.ndarray:
+    from app.geometry.transforms import check_pose
+
+    try:
+        return check_pose(T_cam_bed, "T_cam_bed", tol=1e-5)
+    except (ValueError, TypeError) as exc:
+        raise Invalid(str(exc)) from None
+
+
+def set_bed_pose(session: Session, camera_id: int, T_cam_bed, by: str) -> SheetBedPose:
+    get_camera(session, camera_id)
+    T = _check_bed_pose(T_cam_bed)
+    row = session.get(SheetBedPose, camera_id) or SheetBedPose(camera_id=camera_id, T_cam_bed=[], set_by=by)
+    row.T_cam_bed, row.set_by, row.updated_at = T.tolist(), by, utcnow()
+    session.add(row)
+    session.flush()
+    return row
+
+
+def get_bed_pose(session: Session, camera_id: int) -> SheetBedPose:
+    get_camera(session, camera_id)
+    row = session.get(SheetBedPose, camera_id)
+    if row is None:
+        raise NotFound(f"camera {camera_id} has no stored bed pose; PUT one or give T_cam_bed with the request")
+    return row
+
+
+# ----------------------------------------------------------------------------------------- alignment
+def _plane(intrinsics: dict, T_cam_bed, thickness_mm: float):
+    from app.vision.bed_scale import BedPlane
+    from app.vision.intrinsics import parse_intrinsics
+
+    cam = parse_intrinsics(intrinsics)
+    return BedPlane.create(cam.K_array, cam.dist_array, np.asarray(T_cam_bed, float), thickness_mm)
+
+
+def _png(img: np.ndarray) -> bytes:
+    return cv2.imencode(".png", img)[1].tobytes()
+
+
+def _jpeg(img: np.ndarray, quality: int = 90) -> bytes:
+    return cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])[1].tobytes()
+
+
+def create_alignment(session: Session, files: FileStore, events, *, machine_id: int, camera_id: int,
+                     image: bytes | None, grab: bool, T_cam_bed, thickness_mm: float, margin_mm: float,
+                     by: str | None) -> SheetAlignment:
+    """Find the sheet in an uploaded or grabbed image; the attempt is stored whether found or not."""
+    from app.vision.sheet import MAX_MARGIN_MM, draw_sheet, find_sheet
+
+    machine = get_machine(session, machine_id)
+    cam = get_camera(session, camera_id)
+    if not cam.intrinsics:
+        raise Invalid(f"camera {cam.id} ({cam.name}) has no intrinsics; calibrate it first")
+    if not 0.0 <= margin_mm <= MAX_MARGIN_MM:
+        raise Invalid(f"margin_mm {margin_mm} is outside 0..{MAX_MARGIN_MM:.0f} mm")
+    if not 0.0 <= thickness_mm <= 200.0:
+        raise Invalid(f"thickness_mm {thickness_mm} is outside 0..200 mm")
+    T = _check_bed_pose(T_cam_bed) if T_cam_bed is not None else np.asarray(get_bed_pose(session, cam.id).T_cam_bed)
+    if (image is None) == (not grab):
+        raise Invalid("give either an image file or grab=true (not both, not neither)")
+    if grab:
+        img = grab_frame(cam)
+        data = _jpeg(img, 95)
+    else:
+        img = decode_image(image, "image")
+        data = image
+    w, h = cam.intrinsics["width"], cam.intrinsics["height"]
+    if (img.shape[1], img.shape[0]) != (w, h):
+        raise Invalid(f"image is {img.shape[1]} x {img.shape[0]} px but camera {cam.id}'s intrinsics are for "
+                      f"{w} x {h} px; use the calibration of this camera and resolution")
+    plane = _plane(cam.intrinsics, T, thickness_mm)
+    result = find_sheet(img, plane, margin_mm=margin_mm)
+    row = SheetAlignment(
+        machine_id=machine.id, camera_id=cam.id, intrinsics=cam.intrinsics, T_cam_bed=T.tolist(),
+        thickness_mm=thickness_mm, margin_mm=margin_mm, image_sha256=files.put(session, data, _media(data)),
+        picture_sha256=files.put(session, _png(draw_sheet(img, result)), "image/png"),
+        origin="grab" if grab else "upload", status="located" if result else "failed",
+        reason="" if result else result.reason, result=result.as_dict(), created_by=by)
+    session.add(row)
+    session.flush()
+    log.info("sheet alignment", extra={"alignment_id": row.id, "status": row.status, "reason": row.reason})
+    events.publish("sheet.located" if result else "sheet.failed",
+                   {"alignment_id": row.id, "machine_id": machine.id, "camera_id": cam.id,
+                    **({"offset": result.offset.as_dict(), "angle_deg": result.angle_deg} if result
+                       else {"reason": row.reason})})
+    return row
+
+
+def get_alignment(session: Session, alignment_id: int) -> SheetAlignment:
+    row = session.get(SheetAlignment, alignment_id)
+    if row is None:
+        raise NotFound(f"sheet alignment {alignment_id} not found")
+    return row
+
+
+def confirm_alignment(session: Session, events, alignment_id: int, actor: str) -> SheetAlignment:
+    row = get_alignment(session, alignment_id)
+    if row.status != "located":
+        raise Conflict(f"sheet alignment {alignment_id} failed ({row.reason}); there is nothing to confirm")
+    if row.confirmed_at is None:
+        row.confirmed_by, row.confirmed_at = actor, utcnow()
+        session.add(row)
+        audit(session, actor, "sheet.confirm", machine_id=row.machine_id, alignment_id=row.id,
+              offset=row.result["offset"])
+        events.publish("sheet.confirmed", {"alignment_id": row.id, "machine_id": row.machine_id, "by": actor})
+    return row
+
+
+def machine_offset(machine, offset_bed: dict, thickness_mm: float, z_mm: float) -> WorkOffset:
+    """X, Y, C of the sheet's work origin in machine coordinates (``T_machine_table`` as ``T_machine_bed``);
+    Z is passed through (the controller's current Z)."""
+    c = math.radians(offset_bed["c_deg"])
+    T_bed_datum = np.eye(4)
+    T_bed_datum[:2, :2] = [[math.cos(c), -math.sin(c)], [math.sin(c), math.cos(c)]]
+    T_bed_datum[:3, 3] = (offset_bed["x_mm"], offset_bed["y_mm"], thickness_mm)
+    T = np.asarray(machine.T_machine_table, float) @ T_bed_datum
+    return WorkOffset(float(T[0, 3]), float(T[1, 3]), z_mm, math.degrees(math.atan2(T[1, 0], T[0, 0])))
+
+
+def _travel_reasons(machine, off: WorkOffset) -> list[str]:
+    out = []
+    for axis in ("x", "y"):
+        v = getattr(off, f"{axis}_mm")
+        lo, hi = machine.travel_mm[axis]
+        if not lo <= v <= hi:
+            out.append(f"{axis.upper()} {v:.3f} mm is outside the machine's travel [{lo}, {hi}] mm")
+    return out
+
+
+def _check_slot(slot: str) -> str:
+    slot = slot.strip().upper()
+    try:
+        slot_number(slot)
+    except ValueError as exc:
+        raise Invalid(str(exc)) from None
+    return slot
+
+
+def write_sheet_offset(session: Session, machine, alignment_id: int, offset_bed: dict, thickness_mm: float,
+                       slot: str, actor: str, action: str) -> dict:
+    """Read the slot, write X/Y/C (Z kept), read back, compare; audit before and after.
+
+    ``action`` is ``sheet.export`` or ``sheet.redatum``. Returns {status: verified|mismatch|failed, before,
+    written, read_back, reason}; raises Unavailable when the controller cannot be reached before writing.
+    """
+    if not machine.controller:
+        raise Invalid(f"machine {machine.id} ({machine.name}) has no controller configured")
+    try:
+        controller = make_controller(machine.controller)
+    except ValueError as exc:
+        raise Invalid(f"machine {machine.id} controller settings: {exc}") from None
+    out: dict = {"slot": slot, "before": None, "written": None, "read_back": None}
+    try:
+        try:
+            before = controller.read_offset(slot)
+        except ControllerError as exc:
+            audit(session, actor, f"{action}.read_failed", machine_id=machine.id, alignment_id=alignment_id,
+                  slot=slot, reason=str(exc))
+            session.commit()
+            raise Unavailable(f"{exc}; nothing was written") from None
+        off = machine_offset(machine, offset_bed, thickness_mm, before.z_mm)
+        if reasons := _travel_reasons(machine, off):
+            raise Invalid("offset refused: " + "; ".join(reasons))
+        out.update(before=before.as_dict(), written=off.as_dict())
+        audit(session, actor, f"{action}.write", machine_id=machine.id, alignment_id=alignment_id, slot=slot,
+              before=before.as_dict(), written=off.as_dict(), controller=controller.describe)
+        session.commit()  # the attempt is on record before the controller is touched
+        try:
+            controller.write_offset(slot, off)
+            back = controller.read_offset(slot)
+        except ControllerError as exc:
+            audit(session, actor, f"{action}.failed", machine_id=machine.id, alignment_id=alignment_id, slot=slot,
+                  reason=str(exc))
+            session.commit()
+            log.error("sheet offset write failed", extra={"alignment_id": alignment_id, "reason": str(exc)})
+            return {**out, "status": "failed", "reason": f"writing {slot} failed: {exc}"}
+        agree = off.agrees_with(back, controller.rounding_mm, controller.rounding_deg)
+        reason = "" if agree else (f"read-back {back} differs from written {off} beyond the controller's rounding "
+                                   f"({controller.rounding_mm} mm, {controller.rounding_deg}°)")
+        audit(session, actor, f"{action}.verified" if agree else f"{action}.mismatch", machine_id=machine.id,
+              alignment_id=alignment_id, slot=slot, written=off.as_dict(), read_back=back.as_dict())
+        session.commit()
+        return {**out, "read_back": back.as_dict(), "status": "verified" if agree else "mismatch", "reason": reason}
+    finally:
+        controller.close()
+
+
+def export_alignment(session: Session, events, alignment_id: int, *, slot: str, actor: str) -> dict:
+    """Write a confirmed alignment's X, Y, C to ``slot`` (read back, audit, events)."""
+    slot = _check_slot(slot)
+    row = get_alignment(session, alignment_id)
+    if row.status != "located":
+        raise Conflict(f"sheet alignment {alignment_id} failed ({row.reason}); there is nothing to export")
+    if row.confirmed_at is None:
+        raise Conflict(f"sheet alignment {alignment_id} is not confirmed; an operator must confirm it before export")
+    machine = get_machine(session, row.machine_id)
+    try:
+        res = write_sheet_offset(session, machine, row.id, row.result["offset"], row.thickness_mm, slot,
+                                 actor, "sheet.export")
+    except Unavailable as exc:
+        events.publish("offset.export_failed", {"alignment_id": row.id, "slot": slot, "reason": exc.detail})
+        raise
+    base = {"alignment_id": row.id, "machine_id": machine.id, "slot": slot}
+    if res["status"] == "verified":
+        events.publish("sheet.offset_exported", {**base, "written": res["written"], "read_back": res["read_back"]})
+    else:
+        events.publish("offset.export_failed", {**base, "reason": res["reason"]})
+        if res["status"] == "failed":
+            raise Unavailable(res["reason"])
+    return res
+
+
+# ----------------------------------------------------------------------------------------- monitoring
+@dataclass
+class _Runtime:
+    """A running monitor in this service: the drift state machine, its lock and its poller."""
+
+    monitor_id: int
+    drift: object
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    stop_event: threading.Event = field(default_factory=threading.Event)
+    thread: threading.Thread | None = None
+    unseen: int = 0  # frames in a row without a usable decision (frame_missing / corner_not_found)
+    held: bool = False  # the program was held for them
+
+
+class SheetMonitors:
+    """The monitors running in this service process (``app.state.sheet_monitors``).
+
+    Frames come from a poller thread per monitor (camera source, every ``interval_s``) or are posted
+    (batch/test mode); both go through :meth:`process`, one frame at a time per monitor.
+    """
+
+    def __init__(self, engine, files: FileStore, events) -> None:
+        self.engine, self.files, self.events = engine, files, events
+        self._runs: dict[int, _Runtime] = {}
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def finish_stale(session: Session) -> None:
+        """Monitors left 'running' by an earlier run of the service lost their drift state: finish them."""
+        for mon in session.exec(select(SheetMonitor).where(SheetMonitor.state == "running")).all():
+            mon.state, mon.reason, mon.updated_at = "finished", "the service restarted; start a new monitor", utcnow()
+            session.add(mon)
+        session.flush()
+
+    # ------------------------------------------------------------------ start / stop
+    def start(self, session: Session, *, alignment_id: int, l1_mm: float, l2_mm: float, interval_s: float | None,
+              slot: str, roi_px: int, actor: str, hold_after_unseen: int | None = None) -> SheetMonitor:
+        from app.vision.drift import DriftMonitor
+
+        slot = _check_slot(slot)
+        row = get_alignment(session, alignment_id)
+        if row.status != "located":
+            raise Conflict(f"sheet alignment {alignment_id} failed ({row.reason}); nothing to monitor")
+        if row.confirmed_at is None:
+            raise Conflict(f"sheet alignment {alignment_id} is not confirmed; monitoring re-datums the machine, "
+                           "so an operator must confirm the alignment first")
+        if not 0.0 < l1_mm < l2_mm:
+            raise Invalid(f"thresholds must satisfy 0 < L1 < L2, got L1 = {l1_mm} mm, L2 = {l2_mm} mm")
+        if hold_after_unseen is not None and hold_after_unseen < 1:
+            raise Invalid(f"hold_after_unseen must be 1 or more frames (or null: never), got {hold_after_unseen}")
+        if interval_s is not None and not 0.05 <= interval_s <= 3600:
+            raise Invalid(f"interval_s {interval_s} is outside 0.05..3600 s")
+        busy = session.exec(select(SheetMonitor).where(SheetMonitor.alignment_id == alignment_id,
+                                                       SheetMonitor.state == "running")).first()
+        if busy is not None and busy.id in self._runs:
+            raise Conflict(f"monitor {busy.id} already watches alignment {alignment_id}; stop it first")
+        cam = get_camera(session, row.camera_id)
+        source = None
+        if interval_s is not None:
+            if cam.source.get("kind", "upload") == "upload":
+                raise Invalid(f"camera {cam.id} ({cam.name}) has no image source to poll (upload only); "
+                              "configure a source or post frames (interval_s = null)")
+            from app.sources import make_source
+
+            source = make_source(cam.source)
+        image = decode_image(self.files.read(row.image_sha256), "alignment image")
+        plane = _plane(row.intrinsics, row.T_cam_bed, row.thickness_mm)
+        try:
+            drift = DriftMonitor(np.asarray(row.result["corners_px"]), plane, l1_mm, l2_mm, margin_mm=row.margin_mm,
+                                 roi_px=roi_px, start_frame=image)
+        except ValueError as exc:
+            raise Invalid(f"monitor not started: {exc}") from None
+        mon = SheetMonitor(alignment_id=row.id, l1_mm=l1_mm, l2_mm=l2_mm, interval_s=interval_s, slot=slot,
+                           roi_px=roi_px, hold_after_unseen=hold_after_unseen, created_by=actor)
+        session.add(mon)
+        session.flush()
+        audit(session, actor, "sheet.monitor_start", machine_id=row.machine_id, alignment_id=row.id,
+              monitor_id=mon.id, l1_mm=l1_mm, l2_mm=l2_mm, slot=slot)
+        session.commit()
+        rt = _Runtime(mon.id, drift)
+        with self._lock:
+            self._runs[mon.id] = rt
+        if source is not None:
+            rt.thread = threading.Thread(target=self._poll, args=(rt, source, interval_s),
+                                         name=f"sheet-monitor-{mon.id}", daemon=True)
+            rt.thread.start()
+        log.info("sheet monitor started", extra={"monitor_id": mon.id, "alignment_id": row.id})
+        return mon
+
+    def end(self, session: Session, monitor_id: int, actor: str, *, stop_machine: bool = False) -> SheetMonitor:
+        """End monitoring (state ``finished`` unless the monitor stopped the machine); optionally abort."""
+        mon = get_monitor(session, monitor_id)
+        self._drop(monitor_id)  # first: the poller's last frame commits before this session writes
+        session.refresh(mon)
+        action = None
+        if stop_machine:
+            machine = get_machine(session, get_alignment(session, mon.alignment_id).machine_id)
+            action = _controller_call(machine, "stop")
+            audit(session, actor, "sheet.operator_stop", machine_id=machine.id, monitor_id=mon.id, result=action)
+        if mon.state == "running":
+            mon.state, mon.reason = "finished", f"ended by {actor}"
+            if action:
+                mon.reason += f"; machine stop: {action}"
+            mon.updated_at = utcnow()
+            session.add(mon)
+        session.commit()
+        return mon
+
+    def _drop(self, monitor_id: int) -> _Runtime | None:
+        with self._lock:
+            rt = self._runs.pop(monitor_id, None)
+        if rt is not None:
+            rt.stop_event.set()
+            if rt.thread is not None and rt.thread is not threading.current_thread():
+                rt.thread.join(timeout=10)
+        return rt
+
+    def shutdown(self) -> None:
+        for mid in list(self._runs):
+            self._drop(mid)
+
+    def runtime(self, monitor_id: int) -> _Runtime | None:
+        return self._runs.get(monitor_id)
+
+    # ------------------------------------------------------------------ frames
+    def _poll(self, rt: _Runtime, source, interval_s: float) -> None:
+        from app.sources import SourceError
+
+        while not rt.stop_event.is_set():
+            t0 = time.monotonic()
+            try:
+                frame, why = source.grab(), ""
+            except SourceError as exc:
+                frame, why = None, f"frame missing: {exc}"
+            except Exception as exc:  # noqa: BLE001 - a poller must keep reporting, never die silently
+                frame, why = None, f"frame missing: {exc.__class__.__name__}: {exc}"
+            if rt.stop_event.is_set():
+                return
+            try:
+                self.process(rt.monitor_id, frame, missing_reason=why)
+            except Conflict:
+                return  # the monitor ended meanwhile
+            except Exception:  # noqa: BLE001
+                log.exception("sheet monitor frame failed", extra={"monitor_id": rt.monitor_id})
+            rt.stop_event.wait(max(0.0, interval_s - (time.monotonic() - t0)))
+
+    def process(self, monitor_id: int, frame, *, missing_reason: str = "", actor: str = "sheet monitor") -> dict:
+        """One frame (BGR ndarray, encoded bytes or None) -> decision, stored, acted on, published."""
+        from app.vision.drift import CORNER_NOT_FOUND, FRAME_MISSING, REDATUM, STOP, draw_drift
+
+        rt = self._runs.get(monitor_id)
+        if rt is None:
+            with Session(self.engine, expire_on_commit=False) as session:
+                mon = get_monitor(session, monitor_id)
+            raise Conflict(f"monitor {monitor_id} is {mon.state} ({mon.reason}); it takes no more frames")
+        with rt.lock:
+            decision = rt.drift.update(frame)
+            if decision.decision == FRAME_MISSING and missing_reason:
+                decision = dataclasses.replace(decision, reason=missing_reason)
+            with Session(self.engine, expire_on_commit=False) as session:
+                mon = get_monitor(session, monitor_id)
+                align = get_alignment(session, mon.alignment_id)
+                machine = get_machine(session, align.machine_id)
+                frame_sha = picture_sha = None
+                img = None
+                if isinstance(frame, np.ndarray):
+                    img = frame
+                    frame_sha = self.files.put(session, _jpeg(frame), "image/jpeg")
+                elif isinstance(frame, (bytes, bytearray)) and frame:
+                    frame_sha = self.files.put(session, bytes(frame), _media(bytes(frame)))
+                    img = cv2.imdecode(np.frombuffer(bytes(frame), np.uint8), cv2.IMREAD_COLOR)
+                if img is not None and decision.decision != "ok":
+                    picture_sha = self.files.put(session, _jpeg(draw_drift(img, decision, mon.roi_px)), "image/jpeg")
+                action: dict | None = None
+                if decision.decision == STOP and mon.state == "running":
+                    action = {"stop": _controller_call(machine, "stop")}
+                    mon.state, mon.reason = "stopped", decision.reason
+                    audit(session, actor, "sheet.stop", machine_id=machine.id, monitor_id=mon.id,
+                          alignment_id=align.id, reason=decision.reason, result=action["stop"])
+                elif decision.decision == REDATUM:
+                    action = self._redatum(session, machine, align, mon, decision.new_offset.as_dict(), actor)
+                if decision.decision in (FRAME_MISSING, CORNER_NOT_FOUND):
+                    rt.unseen += 1
+                    if mon.hold_after_unseen and rt.unseen >= mon.hold_after_unseen and not rt.held:
+                        rt.held = True
+                        action = {"pause": _controller_call(machine, "pause")}
+                        audit(session, actor, "sheet.unseen_hold", machine_id=machine.id, monitor_id=mon.id,
+                              frames=rt.unseen, reason=decision.reason, result=action["pause"])
+                else:
+                    rt.unseen, rt.held = 0, False
+                d = decision.as_dict()
+                ev = SheetMonitorEvent(monitor_id=mon.id, frame_index=decision.frame_index, decision=decision.decision,
+                                       reason=decision.reason, errors_mm=d["errors_mm"], detail={**d, "action": action},
+                                       frame_sha256=frame_sha, picture_sha256=picture_sha)
+                session.add(ev)
+                mon.frames += 1
+                mon.updated_at = utcnow()
+                session.add(mon)
+                session.flush()
+                item = event_public(ev)
+                mon.last_decision = item
+                session.add(mon)
+                session.commit()
+                state = mon.state
+        level = logging.INFO if decision.decision == "ok" else logging.WARNING
+        log.log(level, "sheet decision", extra={"monitor_id": monitor_id, "decision": decision.decision,
+                                                "reason": decision.reason, "errors_mm": d["errors_mm"]})
+        if decision.decision in PUBLISHED:
+            self.events.publish(f"sheet.{decision.decision}", {"machine_id": machine.id, "alignment_id": align.id,
+                                                               **item})
+        if state != "running":
+            self._drop(monitor_id)
+        return item
+
+    def _redatum(self, session: Session, machine, align, mon, offset_bed: dict, actor: str) -> dict:
+        """Write the new X, Y, C; if it cannot be written and verified, hold the program (feed hold)."""
+        if not machine.controller:
+            return {"redatum": {"status": "not_sent", "reason": f"machine {machine.id} has no controller configured"}}
+        try:
+            res = write_sheet_offset(session, machine, align.id, offset_bed, align.thickness_mm,
+                                     mon.slot, actor, "sheet.redatum")
+        except (Unavailable, Invalid) as exc:
+            res = {"status": "failed", "reason": exc.detail}
+        out = {"redatum": res}
+        if res["status"] != "verified":
+            out["pause"] = _controller_call(machine, "pause")
+            audit(session, actor, "sheet.redatum_pause", machine_id=machine.id, monitor_id=mon.id,
+                  reason=res["reason"], result=out["pause"])
+        return out
+
+
+def _media(data: bytes) -> str:
+    """Media type of a posted frame as far as its first bytes tell (it may not be an image at all)."""
+    if data.startswith(b"\x89PNG"):
+        return "image/png"
+    return "image/jpeg" if data.startswith(b"\xff\xd8") else "application/octet-stream"
+
+
+def _controller_call(machine, what: str) -> str:
+    """``controller.stop()`` / ``pause()``: "done", or the reason it failed (also logged)."""
+    if not machine.controller:
+        return f"not sent: machine {machine.id} has no controller configured"
+    try:
+        controller = make_controller(machine.controller)
+    except ValueError as exc:
+        return f"not sent: controller settings: {exc}"
+    try:
+        getattr(controller, what)()
+        return "done"
+    except ControllerError as exc:
+        log.error(f"sheet monitor: controller {what} failed", extra={"machine_id": machine.id, "reason": str(exc)})
+        return f"failed: {exc}"
+    finally:
+        controller.close()
+
+
+_REGISTRY_LOCK = threading.Lock()
+
+
+def registry(app_state, session: Session) -> SheetMonitors:
+    """The service's :class:`SheetMonitors`, made on first use, which finishes (in ``session``) the monitors
+    left 'running' by an earlier run of the service."""
+    with _REGISTRY_LOCK:
+        reg = getattr(app_state, "sheet_monitors", None)
+        if reg is None:
+            SheetMonitors.finish_stale(session)
+            reg = app_state.sheet_monitors = SheetMonitors(app_state.engine, app_state.files, app_state.events)
+    return reg
+
+
+def get_monitor(session: Session, monitor_id: int) -> SheetMonitor:
+    mon = session.get(SheetMonitor, monitor_id)
+    if mon is None:
+        raise NotFound(f"sheet monitor {monitor_id} not found")
+    return mon
+
+
+def list_monitors(session: Session, state: str | None = None, limit: int = 20) -> list[SheetMonitor]:
+    q = select(SheetMonitor).order_by(col(SheetMonitor.id).desc()).limit(limit)
+    if state:
+        q = q.where(SheetMonitor.state == state)
+    return list(session.exec(q).all())
+
+
+def monitor_events(session: Session, monitor_id: int, *, after_id: int = 0, limit: int = RECENT) -> list[SheetMonitorEvent]:
+    """Decisions with id > after_id, oldest first (at most ``limit``, the newest ones)."""
+    rows = session.exec(select(SheetMonitorEvent).where(SheetMonitorEvent.monitor_id == monitor_id,
+                                                       SheetMonitorEvent.id > after_id)
+                        .order_by(col(SheetMonitorEvent.id).desc()).limit(limit)).all()
+    return list(reversed(rows))
+
+
+def get_event(session: Session, monitor_id: int, event_id: int) -> SheetMonitorEvent:
+    ev = session.get(SheetMonitorEvent, event_id)
+    if ev is None or ev.monitor_id != monitor_id:
+        raise NotFound(f"monitor {monitor_id} has no decision {event_id}")
+    return ev
+
+
+def event_public(ev: SheetMonitorEvent) -> dict:
+    base = f"/api/v1/sheet/monitors/{ev.monitor_id}/decisions/{ev.id}"
+    return {"id": ev.id, "monitor_id": ev.monitor_id, "frame_index": ev.frame_index, "decision": ev.decision,
+            "reason": ev.reason, "errors_mm": ev.errors_mm, "at": ev.at.isoformat(),
+            "corners_px": ev.detail.get("corners_px"), "new_offset": ev.detail.get("new_offset"),
+            "action": ev.detail.get("action"),
+            "frame_url": f"{base}/frame" if ev.frame_sha256 else None,
+            "picture_url": f"{base}/picture" if ev.picture_sha256 else None}

@@ -1,0 +1,143 @@
+"""/api/v1/cameras over real HTTP: CRUD, sources, snapshot, calibration on real board images."""
+
+from __future__ import annotations
+
+import http.server
+import json
+import threading
+
+import cv2
+import numpy as np
+import pytest
+
+INTR = {"width": 640, "height": 480, "K": [[500, 0, 320], [0, 500, 240], [0, 0, 1]], "dist": [0, 0, 0, 0, 0]}
+
+
+@pytest.fixture(scope="module")
+def jpeg_server():
+    """A tiny HTTP camera on 127.0.0.1 serving one JPEG at /snapshot.jpg."""
+    img = np.zeros((120, 160, 3), np.uint8)
+    cv2.circle(img, (80, 60), 30, (255, 255, 255), -1)
+    payload = cv2.imencode(".jpg", img)[1].tobytes()
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802
+            if self.path != "/snapshot.jpg":
+                self.send_error(404)
+                return
+            self.send_response(200)
+            self.send_header("Content-Type", "image/jpeg")
+            self.send_header("Content-Length", str(len(payload)))
+            self.end_headers()
+            self.wfile.write(payload)
+
+        def log_message(self, *a):
+            pass
+
+    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    yield f"http://127.0.0.1:{srv.server_address[1]}"
+    srv.shutdown()
+
+
+def test_camera_crud(client):
+    r = client.post("/api/v1/cameras", json={"name": "cab cam", "intrinsics": INTR})
+    assert r.status_code == 201, r.text
+    cam = r.json()
+    assert cam["source"] == {"kind": "upload"} and cam["intrinsics"]["K"][0][0] == 500
+    r = client.patch(f"/api/v1/cameras/{cam['id']}", json={"name": "cabin camera"})
+    assert r.json()["name"] == "cabin camera" and r.json()["intrinsics"] == cam["intrinsics"]
+    assert any(c["id"] == cam["id"] for c in client.get("/api/v1/cameras").json())
+    assert client.delete(f"/api/v1/cameras/{cam['id']}").status_code == 204
+    r = client.get(f"/api/v1/cameras/{cam['id']}")
+    assert r.status_code == 404 and r.json()["detail"] == f"camera {cam['id']} not found"
+
+
+@pytest.mark.parametrize("body, detail", [
+    ({"name": "x", "intrinsics": {**INTR, "K": [[1, 0], [0, 1]]}}, "K must be 3x3"),
+    ({"name": "x", "source": {"kind": "carrier-pigeon"}}, "source"),
+    ({"name": ""}, "name"),
+])
+def test_camera_rejections(client, body, detail):
+    r = client.post("/api/v1/cameras", json=body)
+    assert r.status_code == 422 and detail in r.json()["detail"], r.text
+
+
+def test_snapshot_from_http_source(client, jpeg_server):
+    cam = client.post("/api/v1/cameras", json={"name": "http cam",
+                                               "source": {"kind": "http", "url": f"{jpeg_server}/snapshot.jpg"}}).json()
+    r = client.post(f"/api/v1/cameras/{cam['id']}/snapshot")
+    assert r.status_code == 200, r.text
+    img = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+    assert img.shape == (120, 160, 3) and img[60, 80].mean() > 200
+
+
+def test_snapshot_refusals(client, jpeg_server):
+    up = client.post("/api/v1/cameras", json={"name": "upload only"}).json()
+    r = client.post(f"/api/v1/cameras/{up['id']}/snapshot")
+    assert r.status_code == 422 and "no image source (upload only)" in r.json()["detail"], r.text
+    broken = client.post("/api/v1/cameras", json={"name": "gone",
+                                                  "source": {"kind": "http", "url": f"{jpeg_server}/missing.jpg"}}).json()
+    r = client.post(f"/api/v1/cameras/{broken['id']}/snapshot")
+    assert r.status_code == 502 and "404" in r.json()["detail"]
+
+
+@pytest.mark.slow
+def test_calibration_reproduces_opencv_reference(client, external_data):
+    cam = client.post("/api/v1/cameras", json={"name": "left"}).json()
+    folder = external_data / "opencv_samples_data"
+    files = [("images", (p.name, p.read_bytes(), "image/jpeg")) for p in sorted(folder.glob("left*.jpg"))]
+    board = {"kind": "chessboard", "inner_corners": [9, 6], "square_mm": 25.0}
+    # With OpenCV's sample setting (11 px refinement window) the published figures come back:
+    # fx = fy = 535.9, cx = 342.3, cy = 235.6, RMS 0.39 px (left_intrinsics.yml).
+    r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations", files=files,
+                    data={"board": json.dumps(board), "fix_aspect_ratio": "true", "subpix_window_px": "11"})
+    assert r.status_code == 201, r.text
+    ref = r.json()
+    K = np.array(ref["result"]["intrinsics"]["K"])
+    assert K[0, 0] == pytest.approx(535.9, abs=1.5) and K[1, 1] == pytest.approx(K[0, 0], rel=1e-9)
+    assert K[0, 2] == pytest.approx(342.3, abs=1.5) and K[1, 2] == pytest.approx(235.6, abs=1.5)
+    assert ref["rms_px"] == pytest.approx(0.40, abs=0.05)
+    # The default window (40 % of the corner spacing) does not pull left02's corners onto their
+    # neighbours: lower RMS, focal length within 3.5 px of the reference.
+    r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations", files=files,
+                    data={"board": json.dumps(board), "fix_aspect_ratio": "true"})
+    cal = r.json()
+    assert cal["result"]["intrinsics"]["K"][0][0] == pytest.approx(535.9, abs=3.5)
+    assert cal["rms_px"] < 0.25 < ref["rms_px"]
+    r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations/{cal['id']}/accept")
+    assert r.status_code == 200 and r.json()["intrinsics"]["K"] == cal["result"]["intrinsics"]["K"]
+    listed = client.get(f"/api/v1/cameras/{cam['id']}/calibrations").json()
+    assert [c["id"] for c in listed] == [ref["id"], cal["id"]] and listed[1]["accepted"]
+
+
+def test_calibration_refuses_too_few_views(client, external_data):
+    cam = client.post("/api/v1/cameras", json={"name": "few"}).json()
+    folder = external_data / "opencv_samples_data"
+    files = [("images", (p.name, p.read_bytes(), "image/jpeg")) for p in sorted(folder.glob("left0[1-2].jpg"))]
+    board = {"kind": "chessboard", "inner_corners": [9, 6], "square_mm": 25.0}
+    r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations", files=files, data={"board": json.dumps(board)})
+    assert r.status_code == 422, r.text
+    assert "failed" in r.json()["detail"] and "usable" in r.json()["detail"]
+    stored = client.get(f"/api/v1/cameras/{cam['id']}/calibrations").json()
+    assert len(stored) == 1 and not stored[0]["ok"], "the failed run is kept with its reason"
+
+
+@pytest.mark.parametrize("board, detail", [
+    ("not json", "board: not valid JSON"),
+    ('{"kind": "dartboard"}', "board"),
+])
+def test_calibration_bad_board(client, external_data, board, detail):
+    cam = client.post("/api/v1/cameras", json={"name": "bb"}).json()
+    img = (external_data / "opencv_samples_data" / "left01.jpg").read_bytes()
+    r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations", files=[("images", ("a.jpg", img))],
+                    data={"board": board})
+    assert r.status_code == 422 and detail in r.json()["detail"], r.text
+
+
+def test_calibration_rejects_non_image(client):
+    cam = client.post("/api/v1/cameras", json={"name": "ni"}).json()
+    board = {"kind": "chessboard", "inner_corners": [9, 6], "square_mm": 25.0}
+    r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations", files=[("images", ("a.jpg", b"hello"))] * 3,
+                    data={"board": json.dumps(board)})
+    assert r.status_code == 422 and "not a readable image" in r.json()["detail"]

@@ -1,0 +1,134 @@
+"""/api/v1/planning/paths and the probing program of a setup, over real HTTP."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from app.synth.scene import place_on_table
+from tests.support.factories import located_setup, make_machine
+from tests.support.scenes import library_entry, library_mesh
+
+
+def test_reference_worked_example_over_rest(client):
+    pts = [[0, 0, 0], [20, 10, -6], [40, 20, -23], [60, 30, -33], [80, 40, -23], [100, 50, -6], [120, 60, 0]]
+    r = client.post("/api/v1/planning/paths", json={"points": pts, "probe": {"working_distance_mm": 30, "clearance_mm": 5},
+                                                    "obstacles": {"part_top_mm": 6}})
+    assert r.status_code == 200, r.text
+    moves = r.json()["moves"]
+    assert [m["pattern"] for m in moves] == ["straight", "over_then_down", "up_over_down", "up_over_down",
+                                             "up_then_over", "straight"]
+    assert moves[2]["waypoints_mm"] == [[40, 20, -23], [40, 20, -19], [60, 30, -19], [60, 30, -33]]
+
+
+@pytest.mark.parametrize("body, detail", [
+    ({"points": [[0, 0, 0], [1, 1, 1]], "probe": {"clearance_mm": 5}, "obstacles": {"part_top_mm": 6}},
+     "working_distance_mm is required"),
+    ({"points": [[0, 0, 0], [1, 1, 1]], "probe": {"working_distance_mm": 1, "clearance_mm": 5},
+      "obstacles": {"meshes": [{"path": "/etc/passwd", "T_table_obj": np.eye(4).tolist()}]}}, "for the CLI"),
+    ({"points": [[0, 0, 0], [1, 1, 1]], "probe": {"working_distance_mm": 1, "clearance_mm": 5},
+      "obstacles": {"part_top_mm": 6}, "method": "teleport"}, "unknown"),
+])
+def test_bad_plan_requests(client, body, detail):
+    r = client.post("/api/v1/planning/paths", json=body)
+    assert r.status_code == 422 and detail in r.json()["detail"], r.text
+
+
+@pytest.fixture(scope="module")
+def bracket_setup(server):
+    with server.client() as c:
+        m = make_machine(c, None)
+        wp = next(x for x in c.get("/api/v1/models", params={"kind": "workpiece"}).json()["data"]
+                  if x["key"] == "bracket_140")
+    mesh = library_mesh("bracket_140")
+    T = place_on_table(mesh, 300.0, 150.0, 10.0)
+    sid = located_setup(server, m["id"], T, T_obj_datum=np.asarray(library_entry("bracket_140").T_obj_datum),
+                        model=(wp["id"], wp["current_revision"]))
+    return sid, T, mesh
+
+
+def test_path_around_a_located_setup_is_collision_free(client, bracket_setup):
+    sid, T, mesh = bracket_setup
+    top = float(mesh.bounds[1][2])
+    pts = [[150, 150, 5], [450, 150, 5]]  # across the part, below its top
+    for method in ("reference", "profile"):
+        r = client.post("/api/v1/planning/paths", json={"points": pts, "method": method,
+                                                        "probe": {"working_distance_mm": 0, "clearance_mm": 5, "radius_mm": 5},
+                                                        "obstacles": {"setup_id": sid}})
+        assert r.status_code == 200, r.text
+        body = r.json()
+        assert body["collision"]["ok"] and not body["collision"]["hits"], body["collision"]
+        assert max(w[2] for m in body["moves"] for w in m["waypoints_mm"]) >= top + 5 - 1e-6
+
+
+def test_probing_program_needs_confirmation_then_runs_on_linuxcnc(server, bracket_setup):
+    sid, T, _ = bracket_setup
+    with server.client("operator") as c:
+        r = c.get(f"/api/v1/setups/{sid}/probing-program")
+        assert r.status_code == 409 and "not confirmed" in r.json()["detail"]
+        c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": 1})
+        real = c.get(f"/api/v1/setups/{sid}/probing-program").text
+        dry = c.get(f"/api/v1/setups/{sid}/probing-program", params={"dry_run": True}).text
+    assert "G38.2" in real and "G38.2" not in dry and "G21" in dry
+    from tests.machine.linuxcnc_sim import shared_sim, skip_reason
+
+    if skip_reason():
+        pytest.skip(skip_reason())
+    sim = shared_sim()
+    sim.mdi("G10 L2 P1 X0 Y0 Z0 R0")  # G54 = machine zero: the program frame is the table frame
+    sim.mdi("G54")
+    sim.mdi("G53 G0 X-100 Y-100 Z0")
+    sim.run_program(dry, name="probe_dry.ngc")
+    for _ in range(1800):
+        st = sim.status()
+        if st["interp_idle"]:
+            break
+        time.sleep(0.1)
+    assert st["interp_idle"], "the dry run did not finish within 180 s"
+    # It ends above its start (the part's origin) at the top: an error would have stopped it earlier.
+    assert st["position"] == pytest.approx([T[0, 3], T[1, 3], 0.0], abs=1e-3), st
+
+
+def _simulated_probe_log(touches, T_true_table_datum, T_nominal_table_datum, ball_r: float) -> str:
+    """Tip positions where the ball touches the TRUE faces, moving along each nominal approach direction."""
+    rows = []
+    for t in touches:
+        n_d = np.asarray(t.face_normal_datum)
+        n_true = T_true_table_datum[:3, :3] @ n_d
+        a = np.asarray(t.approach_tip) + [0, 0, ball_r]          # ball centre at the approach point
+        d = -np.asarray(t.normal)                                # moving towards the nominal face
+        # n_true . (c - t_true) = o + r along c = a + s d
+        s = (t.face_offset_mm + ball_r - n_true @ (a - T_true_table_datum[:3, 3])) / (n_true @ d)
+        tip = a + s * d - [0, 0, ball_r]
+        rows.append(" ".join(f"{v:.6f}" for v in tip) + " 0 0 0 0 0 0")
+    return "\n".join(rows)
+
+
+def test_probe_results_refine_the_pose(server, bracket_setup):
+    from app.geometry.transforms import pose_from_xyz_euler
+    from app.planning.probing import ProbingParams, choose_touch_points
+
+    sid, T, mesh = bracket_setup
+    datum = np.asarray(library_entry("bracket_140").T_obj_datum)
+    with server.client("operator") as c:
+        setup = c.get(f"/api/v1/setups/{sid}").json()
+        c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": setup["result_revision"]})
+        T_nom = np.asarray(c.get(f"/api/v1/setups/{sid}").json()["result"]["objects"][0]["T_table_obj"])
+        touches = choose_touch_points(mesh, T_nom, datum, ProbingParams())
+        shift = pose_from_xyz_euler(0.30, -0.20, 0.05, 0, 0, 0.08)
+        T_true_datum = shift @ T_nom @ datum
+        log = _simulated_probe_log(touches, T_true_datum, T_nom @ datum, ProbingParams().ball_radius_mm)
+        r = c.post(f"/api/v1/setups/{sid}/probe-results", content=log, headers={"Content-Type": "text/plain"})
+        assert r.status_code == 200, r.text
+        body = r.json()
+        got = np.asarray(body["result"]["objects"][0]["T_table_obj"]) @ datum
+        assert np.allclose(got[:3, 3], T_true_datum[:3, 3], atol=1e-3)
+        assert body["result_revision"] == setup["result_revision"] + 1 and body["confirmed_revision"] != body["result_revision"]
+        r = c.post(f"/api/v1/setups/{sid}/probe-results", content="1 2\n", headers={"Content-Type": "text/plain"})
+        assert r.status_code == 409  # the new revision is not confirmed yet
+        rev = c.get(f"/api/v1/setups/{sid}").json()["result_revision"]
+        c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": rev})
+        r = c.post(f"/api/v1/setups/{sid}/probe-results", content="1 2\n", headers={"Content-Type": "text/plain"})
+        assert r.status_code == 422 and "expected 3 or 9 numbers" in r.json()["detail"], r.text
