@@ -1,0 +1,107 @@
+"""Read what the 3D view shows from the store (through the services) into plain :mod:`app.viewer.scene` data.
+
+Meshes are cached per (model id, revision): revisions are immutable, so a cached mesh never goes stale.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+
+import cv2
+import numpy as np
+import trimesh
+
+from app.services import library
+from app.services import setups as setup_svc
+from app.services.cameras import decode_image
+from app.services.errors import ServiceError
+from app.services.machines import get_machine
+from app.store.db import session_scope
+from app.store.files import FileStore
+from app.store.models import Capture
+from app.viewer.scene import DEFAULT_OBJECT_RGB, SetupView, ViewCamera, ViewObject
+
+
+class MeshCache:
+    """Small LRU of library meshes (mm, own frame) keyed by (model_id, revision)."""
+
+    def __init__(self, size: int = 32):
+        self._size = size
+        self._items: OrderedDict[tuple[int, int], trimesh.Trimesh] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, session, files: FileStore, model_id: int, revision: int | None) -> tuple[trimesh.Trimesh, int]:
+        from app.geometry.mesh import load_mesh
+
+        rev = library.get_revision(session, model_id, revision)
+        key = (model_id, rev.revision)
+        with self._lock:
+            if key in self._items:
+                self._items.move_to_end(key)
+                return self._items[key], rev.revision
+        mesh = load_mesh(files.read(rev.glb_sha256), "model.glb", "mm")
+        with self._lock:
+            self._items[key] = mesh
+            while len(self._items) > self._size:
+                self._items.popitem(last=False)
+        return mesh, rev.revision
+
+
+def setup_revision(engine, setup_id: int) -> tuple[int, str]:
+    """(result_revision, status) of a setup: the cheap check the viewer polls."""
+    with session_scope(engine) as session:
+        s = setup_svc.get_setup(session, setup_id)
+        return s.result_revision, s.status
+
+
+def _rgb(bgr) -> tuple[int, int, int]:
+    if not bgr or len(bgr) != 3:
+        return DEFAULT_OBJECT_RGB
+    return int(bgr[2]), int(bgr[1]), int(bgr[0])
+
+
+def load_setup_view(engine, files: FileStore, meshes: MeshCache, setup_id: int) -> SetupView | str:
+    """The 3D view of a setup, or a sentence saying why there is nothing to show yet."""
+    try:
+        with session_scope(engine) as session:
+            s = setup_svc.get_setup(session, setup_id)
+            machine = get_machine(session, s.machine_id)
+            table_mesh, _ = meshes.get(session, files, machine.table_model_id, machine.table_revision)
+            result = s.result or {}
+            objects = []
+            editable = None
+            for i, o in enumerate(result.get("objects") or []):
+                if o.get("model_id") is None or o.get("T_table_obj") is None:
+                    continue
+                mesh, _ = meshes.get(session, files, int(o["model_id"]), o.get("revision"))
+                objects.append(ViewObject(name=str(o.get("name", f"object {i}")), kind=str(o.get("kind", "workpiece")),
+                                          mesh=mesh, T_table_obj=np.asarray(o["T_table_obj"], float),
+                                          rgb=_rgb(o.get("colour_bgr")), result_index=i))
+                if editable is None and o.get("kind", "workpiece") == "workpiece":
+                    editable = len(objects) - 1
+            camera = None
+            table = result.get("table") or {}
+            if table.get("T_cam_table") is not None and s.intrinsics:
+                sha = result.get("overlay_sha256") or session.get(Capture, s.capture_id).image_sha256
+                img = decode_image(files.read(sha))
+                img = img if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+                camera = ViewCamera(T_cam_table=np.asarray(table["T_cam_table"], float),
+                                    K=np.asarray(s.intrinsics["K"], float), width=int(s.intrinsics["width"]),
+                                    height=int(s.intrinsics["height"]), image_rgb=img[:, :, ::-1].copy())
+            return SetupView(title=f"Setup {s.id}", revision=s.result_revision, table_mesh=table_mesh,
+                             objects=tuple(objects), camera=camera, editable=editable)
+    except ServiceError as exc:
+        return exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+
+
+def load_model_view(engine, files: FileStore, meshes: MeshCache, model_id: int) -> SetupView | str:
+    """A library model alone at the origin (the library page's 3D preview)."""
+    try:
+        with session_scope(engine) as session:
+            m = library.get_model(session, model_id)
+            mesh, rev = meshes.get(session, files, model_id, None)
+            return SetupView(title=m.name, revision=rev, table_mesh=None,
+                             objects=(ViewObject(m.name, m.kind, mesh, np.eye(4), (70, 130, 230)),))
+    except ServiceError as exc:
+        return exc.detail if isinstance(exc.detail, str) else str(exc.detail)

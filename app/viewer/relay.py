@@ -1,0 +1,101 @@
+"""Same-origin access to the viser server: the page ``/viewer/<kind>/<id>/`` and its websocket.
+
+viser's web client is one self-contained ``index.html`` in the wheel. It builds its websocket URL from
+the page's address (query dropped, trailing ``/`` stripped), so the page at ``/viewer/setup/5/``
+connects to ``/viewer/setup/5``; we relay that socket to ``ws://127.0.0.1:<viser port>/setup/5``, and
+the viewer reads the path to pick the scene. viser has no authentication of its own: this relay is
+where it would go.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from functools import lru_cache
+from pathlib import Path
+from typing import Literal
+from urllib.parse import urlencode
+
+from fastapi import APIRouter, HTTPException, Request, WebSocket, WebSocketDisconnect
+from fastapi.responses import HTMLResponse
+
+router = APIRouter(tags=["viewer"], include_in_schema=False)
+
+ViewKind = Literal["setup", "model"]
+
+
+@lru_cache(maxsize=1)
+def viser_index_html() -> str:
+    import viser
+
+    return (Path(viser.__file__).parent / "client" / "build" / "index.html").read_text()
+
+
+def principal_of(app, cookies, headers):
+    """The caller (``app.services.access.Principal``) from a session cookie or bearer token, or None.
+    The relay lets through only what the REST API would."""
+    from app.api.deps import SESSION_COOKIE
+    from app.services.access import resolve_token
+    from app.store.db import session_scope
+
+    auth = headers.get("authorization", "")
+    token = auth[7:] if auth.lower().startswith("bearer ") else cookies.get(SESSION_COOKIE)
+    if not token:
+        return None
+    with session_scope(app.state.engine) as session:
+        return resolve_token(session, token)
+
+
+def _viewer(app):
+    viewer = getattr(app.state, "viewer", None)
+    if viewer is None or viewer.server is None:
+        raise HTTPException(503, "the 3D view is not running in this service (start_viewer was not called)")
+    return viewer
+
+
+@router.get("/viewer/{kind}/{ident}/", response_class=HTMLResponse)
+def viewer_page(request: Request, kind: ViewKind, ident: int) -> HTMLResponse:
+    _viewer(request.app)
+    if principal_of(request.app, request.cookies, request.headers) is None:
+        return HTMLResponse("<p style='font: 18px sans-serif'>Sign in first: <a href='/login' target='_top'>sign in</a>.</p>",
+                            status_code=401)
+    return HTMLResponse(viser_index_html(), headers={"Cache-Control": "no-cache"})
+
+
+@router.websocket("/viewer/{kind}/{ident}")
+async def viewer_socket(ws: WebSocket, kind: ViewKind, ident: int) -> None:
+    import websockets
+
+    viewer = getattr(ws.app.state, "viewer", None)
+    if viewer is None or viewer.server is None:
+        await ws.close(code=1011)
+        return
+    who = await asyncio.to_thread(principal_of, ws.app, ws.cookies, ws.headers)
+    if who is None:
+        await ws.close(code=1008)  # policy violation: not signed in
+        return
+    # Who is looking travels to the viewer in the upstream path: only a signed-in person may move parts.
+    query = urlencode({"who": who.label(), "person": int(who.is_person)})
+    protos = ws.scope.get("subprotocols", [])  # the client offers ["viser-v<version>"]
+    async with websockets.connect(f"ws://{viewer.host}:{viewer.port}/{kind}/{ident}?{query}", subprotocols=protos,
+                                  max_size=None, compression=None) as up:
+        await ws.accept(subprotocol=up.subprotocol)
+
+        async def down_to_up() -> None:
+            while True:
+                m = await ws.receive()
+                if m["type"] == "websocket.disconnect":
+                    return
+                await up.send(m["bytes"] if m.get("bytes") is not None else m["text"])
+
+        async def up_to_down() -> None:
+            async for m in up:  # ends when viser closes
+                await (ws.send_bytes(m) if isinstance(m, bytes) else ws.send_text(m))
+
+        tasks = [asyncio.create_task(down_to_up()), asyncio.create_task(up_to_down())]
+        _done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        for t in pending:
+            t.cancel()
+    try:
+        await ws.close()  # viser ended first: tell the browser (it reconnects by itself)
+    except (RuntimeError, WebSocketDisconnect):  # the browser is already gone
+        pass

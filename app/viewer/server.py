@@ -1,0 +1,174 @@
+"""The viser server inside the service process: one scene PER BROWSER, chosen by the page's path.
+
+A browser opens ``/viewer/setup/<id>/`` (or ``/viewer/model/<id>/``) on the service; the relay
+(:mod:`app.viewer.relay`) forwards its websocket to viser at ``ws://127.0.0.1:<viser_port>/setup/<id>``.
+On connect we read that path and build the scene into ``client.scene`` only, so two operators looking
+at two setups never see each other's.
+
+A light poll thread (every ``poll_s``) compares each open setup's ``result_revision`` with the one on
+screen and moves the objects when a nudge, a refine or another browser's gizmo made a new revision.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import re
+import threading
+from urllib.parse import parse_qs
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from app.viewer.scene import SceneHandles, SetupView, build_setup_scene, initial_camera, move_objects
+
+log = logging.getLogger(__name__)
+
+PATH_RE = re.compile(r"^/?(setup|model)/(\d+)/?$")
+
+
+def parse_view_path(path: str) -> tuple[str, int] | None:
+    """``/setup/5`` -> ("setup", 5); anything else -> None."""
+    m = PATH_RE.match(path.partition("?")[0])
+    return (m.group(1), int(m.group(2))) if m else None
+
+
+def parse_viewer(path: str) -> tuple[str | None, bool]:
+    """(who, is_person) that the relay put in the query (``?who=anna (operator)&person=1``)."""
+    q = parse_qs(path.partition("?")[2])
+    return (q.get("who", [None])[0], q.get("person", ["0"])[0] == "1")
+
+
+@dataclass
+class _ClientView:
+    kind: str
+    ident: int
+    revision: int
+    handles: SceneHandles | None
+
+
+class ViewerServer:
+    """viser + per-client scenes.
+
+    load(kind, ident) -> SetupView | str : the scene data, or a sentence why there is none.
+    revision(ident) -> int : current result revision of a setup (cheap; polled).
+    on_move(setup_id, object_index, T_table_obj_mm, who) -> bool : the operator released the gizmo; False when
+        the move was refused (the part is then put back where the result has it).
+    """
+
+    def __init__(self, load: Callable[[str, int], SetupView | str], revision: Callable[[int], int],
+                 on_move: Callable[[int, int, np.ndarray, str], bool] | None = None,
+                 host: str = "127.0.0.1", port: int = 8081, poll_s: float = 1.0):
+        self._load, self._revision, self._on_move = load, revision, on_move
+        self.host, self.requested_port, self.poll_s = host, port, poll_s
+        self._clients: dict[int, _ClientView] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.server: Any = None
+        self._poller: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ life cycle
+    def start(self) -> "ViewerServer":
+        import viser
+
+        self.server = viser.ViserServer(host=self.host, port=self.requested_port, verbose=False)
+        if self.port != self.requested_port:  # viser silently takes the next free port
+            log.warning("viser port busy; using another", extra={"requested": self.requested_port, "port": self.port})
+        self.server.gui.configure_theme(control_layout="floating", control_width="small", show_logo=False,
+                                        show_share_button=False)
+        self.server.gui.main_panel.minimize()  # the operator's controls are on the page, not in viser's panel
+        self.server.on_client_connect(self._connected)
+        self.server.on_client_disconnect(self._disconnected)
+        self._poller = threading.Thread(target=self._poll, name="viewer-poll", daemon=True)
+        self._poller.start()
+        return self
+
+    @property
+    def port(self) -> int:
+        return int(self.server.get_port())
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._poller is not None:
+            self._poller.join(timeout=5)
+        if self.server is not None:
+            self.server.stop()
+
+    def client_views(self) -> dict[int, tuple[str, int, int]]:
+        """client id -> (kind, id, revision on screen): for tests and /health-like checks."""
+        with self._lock:
+            return {cid: (v.kind, v.ident, v.revision) for cid, v in self._clients.items()}
+
+    # ------------------------------------------------------------------ clients
+    def _client_path(self, client_id: int) -> str:
+        # viser keeps the websocket connection of each client; its request path is the one the relay
+        # connected with. (No public API exposes it in viser 1.1.)
+        conn = self.server._websock_server._live_connections.get(client_id)
+        request = getattr(conn, "request", None)
+        return getattr(request, "path", "") or ""
+
+    def _connected(self, client) -> None:
+        path = self._client_path(client.client_id)
+        what = parse_view_path(path)
+        who, person = parse_viewer(path)
+        if what is None:
+            client.gui.add_markdown("Open the 3D view from a setup or the library page.")
+            return
+        kind, ident = what
+        try:
+            view = self._load(kind, ident)
+        except Exception:  # noqa: BLE001 - a broken scene must not kill viser's thread
+            log.exception("viewer: loading the scene failed", extra={"kind": kind, "id": ident})
+            view = "the 3D view could not be built; the error has been logged"
+        if isinstance(view, str):
+            client.gui.add_markdown(f"**Nothing to show:** {view}")
+            with self._lock:
+                self._clients[client.client_id] = _ClientView(kind, ident, -1, None)
+            return
+        on_move = None
+        if kind == "setup" and self._on_move is not None and person:  # API keys and anonymous: look, don't touch
+            def on_move(index: int, T: np.ndarray, setup_id=ident, cid=client.client_id) -> None:
+                if not self._on_move(setup_id, index, T, who or "operator (3D view)"):
+                    self._put_back(cid)
+        elif kind == "setup" and view.editable is not None:
+            view = dataclasses.replace(view, editable=None)
+        handles = build_setup_scene(client.scene, view, on_move)
+        pos, look = initial_camera(view)
+        client.camera.position = tuple(pos)
+        client.camera.look_at = tuple(look)
+        with self._lock:
+            self._clients[client.client_id] = _ClientView(kind, ident, view.revision, handles)
+
+    def _disconnected(self, client) -> None:
+        with self._lock:
+            self._clients.pop(client.client_id, None)
+
+    def _put_back(self, client_id: int) -> None:
+        """A refused move: show the part where the current result has it again."""
+        with self._lock:
+            v = self._clients.get(client_id)
+        if v is None or v.handles is None:
+            return
+        view = self._load("setup", v.ident)
+        if not isinstance(view, str) and len(view.objects) == len(v.handles.frames):
+            move_objects(v.handles, view)
+            v.revision = view.revision
+
+    # ------------------------------------------------------------------ follow new revisions
+    def _poll(self) -> None:
+        while not self._stop.wait(self.poll_s):
+            with self._lock:
+                views = [(cid, v) for cid, v in self._clients.items() if v.kind == "setup" and v.handles is not None]
+            for cid, v in views:
+                try:
+                    rev = self._revision(v.ident)
+                    if rev == v.revision:
+                        continue
+                    view = self._load("setup", v.ident)
+                    if isinstance(view, str) or len(view.objects) != len(v.handles.frames):
+                        continue
+                    move_objects(v.handles, view)
+                    v.revision = view.revision
+                except Exception:  # noqa: BLE001 - keep polling the others
+                    log.exception("viewer: refresh failed", extra={"client": cid, "setup_id": v.ident})

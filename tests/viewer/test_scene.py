@@ -1,0 +1,134 @@
+"""The pure 3D scene builder: poses and units into viser, gizmo moves back to mm poses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from app.geometry.transforms import inv, pose_from_xyz_euler, rotation_angle_deg
+from app.viewer.scene import (M_PER_MM, SetupView, ViewCamera, ViewObject, build_setup_scene, frustum_geometry,
+                              initial_camera, move_objects, pose_to_viser, viser_to_pose)
+from app.viewer.server import parse_view_path, parse_viewer
+
+
+class Handle:
+    def __init__(self, kind, name, kw):
+        self.kind, self.name, self.kw = kind, name, kw
+        self.wxyz, self.position = kw.get("wxyz"), kw.get("position")
+        self.callbacks = []
+
+    def on_update(self, cb):
+        self.callbacks.append(cb)
+        return cb
+
+
+class FakeScene:
+    """Records what the builder asks of viser's scene API."""
+
+    def __init__(self):
+        self.nodes: dict[str, Handle] = {}
+
+    def set_up_direction(self, d):
+        self.up = d
+
+    def _add(self, kind, name, **kw):
+        h = Handle(kind, name, kw)
+        self.nodes[name] = h
+        return h
+
+    def add_mesh_simple(self, name, vertices, faces, **kw):
+        return self._add("mesh", name, vertices=vertices, faces=faces, **kw)
+
+    def add_transform_controls(self, name, **kw):
+        return self._add("gizmo", name, **kw)
+
+    def add_frame(self, name, **kw):
+        return self._add("frame", name, **kw)
+
+    def add_camera_frustum(self, name, **kw):
+        return self._add("frustum", name, **kw)
+
+
+def view(rng) -> SetupView:
+    box = trimesh.creation.box(extents=(100.0, 60.0, 30.0))
+    table = trimesh.creation.box(extents=(800.0, 400.0, 70.0))
+    table.apply_translation((400.0, 200.0, -35.0))
+    wp = ViewObject("block", "workpiece", box, pose_from_xyz_euler(300.0, 150.0, 15.0, c_deg=25.0), result_index=1)
+    clamp = ViewObject("clamp", "clamp", box, pose_from_xyz_euler(500.0, 120.0, 15.0), result_index=0)
+    T_cam_table = inv(pose_from_xyz_euler(400.0, -500.0, 600.0, a_deg=-135.0))
+    K = np.array([[1000.0, 0, 640], [0, 1000.0, 400], [0, 0, 1]])
+    img = rng.integers(0, 255, (800, 1280, 3), dtype=np.uint8)
+    return SetupView("Setup 1", 1, table, (clamp, wp), ViewCamera(T_cam_table, K, 1280, 800, img), editable=1)
+
+
+def test_pose_round_trip_and_units():
+    T = pose_from_xyz_euler(123.4, -56.7, 89.0, a_deg=3.0, b_deg=-4.0, c_deg=170.0)
+    wxyz, pos_m = pose_to_viser(T)
+    assert pos_m == pytest.approx([0.1234, -0.0567, 0.089])
+    assert np.linalg.norm(wxyz) == pytest.approx(1.0)
+    back = viser_to_pose(wxyz, pos_m)
+    assert back[:3, 3] == pytest.approx(T[:3, 3], abs=1e-9)
+    assert rotation_angle_deg(back, T) < 1e-6
+
+
+def test_scene_has_table_objects_gizmo_and_frustum():
+    rng = np.random.default_rng(0)
+    v = view(rng)
+    scene = FakeScene()
+    moves = []
+    handles = build_setup_scene(scene, v, on_move=lambda i, T: moves.append((i, T)))
+    assert scene.up == "+z"
+    assert set(scene.nodes) == {"/table", "/objects/o0", "/objects/o0/mesh", "/objects/o1", "/objects/o1/mesh",
+                                "/camera"}
+    assert scene.nodes["/objects/o1"].kind == "gizmo" and scene.nodes["/objects/o0"].kind == "frame"
+    # meshes are in metres, children of their pose frame
+    verts = scene.nodes["/objects/o1/mesh"].kw["vertices"]
+    assert np.ptp(verts, axis=0) == pytest.approx(np.array([100.0, 60.0, 30.0]) * M_PER_MM, rel=1e-6)
+    assert scene.nodes["/objects/o1"].position == pytest.approx([0.3, 0.15, 0.015])
+    # frustum at inv(T_cam_table), image downscaled, fov from fy
+    fr = scene.nodes["/camera"].kw
+    assert fr["position"] == pytest.approx(inv(v.camera.T_cam_table)[:3, 3] * M_PER_MM)
+    assert fr["fov"] == pytest.approx(2 * np.arctan(400.0 / 1000.0))
+    assert fr["aspect"] == pytest.approx(1.6)
+    assert fr["image"].shape == (300, 480, 3)
+    # a gizmo release reports the result index (not the scene index) and the pose in mm
+    T_new = pose_from_xyz_euler(310.0, 150.0, 15.0, c_deg=30.0)
+    wxyz, pos = pose_to_viser(T_new)
+
+    class Ev:
+        phase = "end"
+        target = type("T", (), {"wxyz": wxyz, "position": pos})()
+
+    scene.nodes["/objects/o1"].callbacks[0](Ev())
+    assert moves[0][0] == 1 and moves[0][1] == pytest.approx(T_new, abs=1e-9)
+    Ev.phase = "update"      # dragging: nothing is sent until the operator lets go
+    scene.nodes["/objects/o1"].callbacks[0](Ev())
+    assert len(moves) == 1
+    # a newer revision moves the objects
+    newer = SetupView("Setup 1", 2, v.table_mesh, (v.objects[0], ViewObject("block", "workpiece", v.objects[1].mesh,
+                                                                             T_new)), v.camera, 1)
+    move_objects(handles, newer)
+    assert handles.frames[1].position == pytest.approx(T_new[:3, 3] * M_PER_MM)
+
+
+def test_initial_camera_looks_at_the_scene_from_above():
+    v = view(np.random.default_rng(1))
+    pos, look = initial_camera(v)
+    assert pos[2] > look[2] + 0.2
+    assert 0.5 < np.linalg.norm(pos - look) < 5.0
+    g = frustum_geometry(v.camera)
+    assert g["T_table_cam"][:3, 3] == pytest.approx(inv(v.camera.T_cam_table)[:3, 3])
+
+
+@pytest.mark.parametrize("path,expected", [("/setup/5", ("setup", 5)), ("setup/12/", ("setup", 12)),
+                                           ("/model/3?x=1", ("model", 3)), ("/", None), ("/setup/x", None),
+                                           ("/other/1", None)])
+def test_parse_view_path(path, expected):
+    assert parse_view_path(path) == expected
+
+
+def test_parse_viewer_from_the_relay_query():
+    assert parse_viewer("/setup/5?who=anna%20%28operator%29&person=1") == ("anna (operator)", True)
+    assert parse_viewer("/setup/5?who=mes%20%28mes%20key%29&person=0") == ("mes (mes key)", False)
+    assert parse_viewer("/setup/5") == (None, False)     # straight to viser's port: look, don't touch
