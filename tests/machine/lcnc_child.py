@@ -62,8 +62,13 @@ def main(argv):
         p = int(argv[2])
         names = ["G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3"]
         s.poll()
-        before = s.g5x_index
+        # a freshly started LinuxCNC reports g5x_index 0 until the interpreter first changes the
+        # slot, and an MDI of the slot already active does not refresh it: step through another slot
+        before = s.g5x_index or 1
         c.mode(linuxcnc.MODE_MDI); c.wait_complete()
+        if s.g5x_index != p:
+            c.mdi(names[p % len(names)]); c.wait_complete()
+            _wait(s, lambda: s.interp_state == linuxcnc.INTERP_IDLE, "interpreter idle")
         c.mdi(names[p - 1]); c.wait_complete()
         _wait(s, lambda: s.interp_state == linuxcnc.INTERP_IDLE and s.g5x_index == p, f"{names[p - 1]} active")
         out = _status(s)
