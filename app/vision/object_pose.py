@@ -959,18 +959,60 @@ def _unexplained_edges(eimg: EdgeImage, model: PreparedModel, T_cam_obj, K, dist
     return float(np.mean(d > tol_px + 0.5 * model.sample_step_mm * K[0, 0] / float(np.median(V[:, 2]))))
 
 
-def _start_hypotheses(model: PreparedModel, start_poses, T_cam_table, K):
-    """Given starts as hypotheses: each in the resting state whose table normal it matches best."""
-    hyps = []
+def _start_hypotheses(model: PreparedModel, start_poses, T_cam_table, K, dist, eimg: EdgeImage,
+                      capture_mm: float = 30.0, capture_deg: float = 8.0, n_peaks: int = 3):
+    """Starts given by someone who knows roughly where the part is ("refine from here").
+
+    Each start is taken in the resting state whose table normal it matches best, then searched
+    locally in the table plane (x, y within ``capture_mm``, rotation within ``capture_deg``, scored
+    in the image as in the fine stage of the plane search) and aligned: an operator's drag or nudge
+    rarely lands within the few pixels the least-squares fit converges from. The start itself stays
+    a candidate, so a start that is already right cannot be talked out of it.
+    Returns (hypotheses best first, px_per_mm) or the reason (str) why there are none."""
+    starts = []
     for T0 in start_poses:
         T0 = check_pose(T0, "start pose T_table_obj")
         ups = [float((T0[:3, :3] @ (inv(r.T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0])))[2])
                for r in model.resting_states]
-        hyps.append(_Hyp(state=int(np.argmax(ups)), T_table_obj=T0, votes=1.0, score=1.0))
-    if not hyps:
+        starts.append((int(np.argmax(ups)), T0))
+    if not starts:
         return "no start pose given"
-    z = float(transform_points(T_cam_table, hyps[0].T_table_obj[:3, 3][None])[0, 2])
-    return hyps, K[0, 0] / max(z, 1.0)
+    z = float(transform_points(T_cam_table, starts[0][1][:3, 3][None])[0, 2])
+    px_per_mm = K[0, 0] / max(z, 1.0)
+    scorer = _image_scorer(eimg, K, dist, T_cam_table, tau_px=3.0)
+    sub_coarse = _sample_subset(model, px_per_mm, 4.0, 400)
+    hyps: list[_Hyp] = []
+    for state, T0 in starts:
+        rs = model.resting_states[state]
+        M = T0 @ inv(rs.T_rest_obj)            # the start as a turn about the table normal + shift
+        th0 = float(np.arctan2(M[1, 0], M[0, 0]))
+        P = transform_points(rs.T_rest_obj, model.samples_obj) + np.array([0.0, 0.0, M[2, 3]])
+        D = model.sample_dir_obj @ rs.T_rest_obj[:3, :3].T
+        sel = np.linspace(0, len(P) - 1, min(len(P), 150)).astype(np.int64)
+        P, D, w = P[sel], D[sel], np.ones(len(sel))
+        round_part = (model.continuous_axis_obj is not None and
+                      abs((rs.T_rest_obj[:3, :3] @ model.continuous_axis_obj)[2]) > 0.999)
+        step = 2.5 / px_per_mm                 # within the scorer's reach of 3 px
+        g = np.arange(-capture_mm, capture_mm + 1e-9, max(step, capture_mm / 25))
+        dth = np.radians(min(2.0, np.degrees(2.5 / (px_per_mm * max(0.5 * model.diameter_mm, 1.0)))))
+        gt = np.array([0.0]) if round_part else \
+            np.arange(-np.radians(capture_deg), np.radians(capture_deg) + 1e-9, dth)
+        DX, DY, DT = np.meshgrid(g, g, gt, indexing="ij")
+        hx, hy, ht = M[0, 3] + DX.ravel(), M[1, 3] + DY.ravel(), th0 + DT.ravel()
+        sc = np.concatenate([scorer(hx[i:i + 2000], hy[i:i + 2000], ht[i:i + 2000], P, D, w)
+                             for i in range(0, len(hx), 2000)])
+        order = np.argsort(-sc)
+        keep = _nms(hx[order], hy[order], ht[order], max(0.2 * model.diameter_mm, 3 * step),
+                    np.radians(15.0), n_peaks)
+        for i in order[keep]:
+            c1, s1 = np.cos(ht[i]), np.sin(ht[i])
+            T = make_pose(np.array([[c1, -s1, 0], [s1, c1, 0], [0, 0, 1.0]]), [hx[i], hy[i], M[2, 3]]) @ rs.T_rest_obj
+            hyps.append(_planar_fit(eimg, model, _Hyp(state=state, T_table_obj=T, votes=float(sc[i])),
+                                    T_cam_table, K, dist, sub_coarse))
+        hyps.append(_planar_fit(eimg, model, _Hyp(state=state, T_table_obj=T0, votes=0.0),
+                                T_cam_table, K, dist, sub_coarse))
+    hyps.sort(key=lambda h: -h.score)
+    return hyps, px_per_mm
 
 
 def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder_models=(), known_models=(),
@@ -1050,7 +1092,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
 
     # ---- stages 1 and 2: search and planar fit
     if start_poses is not None:
-        found = _start_hypotheses(model, start_poses, T_cam_table, K)
+        found = _start_hypotheses(model, start_poses, T_cam_table, K, dist, eimg)
     else:
         found = _search(eimg, K, dist, T_cam_table, model, height_offsets_mm=height_offsets_mm,
                         resting_states=resting_states, n_starts=n_starts, n_planar=n_planar,

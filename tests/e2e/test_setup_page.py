@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 import time
 import urllib.parse
 from pathlib import Path
@@ -220,7 +219,6 @@ def test_setup_upload_review_adjust_refine_confirm(page, service, scene, browser
     assert ("setup", setup_id, 1) in service.app.state.viewer.client_views().values()
     page.wait_for_timeout(400)
     page.screenshot(path=str(ARTIFACTS / "setup-result.png"))
-    shutil.copyfile(ARTIFACTS / "setup-result.png", REPO / "docs" / "screenshot-setup.png")
 
     # nudge: X + 1 mm -> a new revision, the X shown moves by 1 mm (identity machine table)
     x0, rev0 = number(page, "offset-x"), s["result_revision"]
@@ -254,15 +252,11 @@ def test_setup_upload_review_adjust_refine_confirm(page, service, scene, browser
     # the setup page follows the gizmo's revision by itself (it polls)
     page.wait_for_function(f"() => document.querySelector('#step').textContent.includes('revision {rev0 + 2}')", timeout=10_000)
 
-    # refine from here (enabled only when the service has the refine route; else disabled with the reason)
-    with service.client("operator") as c:
-        has_refine = any(p.endswith("/refine") for p in c.get("/openapi.json").json()["paths"])
-    refine = page.get_by_test_id("refine-button")
-    if has_refine:
-        refine.click()
-        page.wait_for_function(f"() => document.querySelector('#step').textContent.includes('revision {rev0 + 3}')", timeout=60_000)
-    else:
-        assert refine.is_disabled() and "not available" in refine.get_attribute("title")
+    # refine from here: the fit starts at the dragged pose (20 mm off) and comes back to the part
+    page.get_by_test_id("refine-button").click()
+    page.wait_for_function(f"() => document.querySelector('#step').textContent.includes('revision {rev0 + 3}')", timeout=60_000)
+    T_refined = np.asarray(setup_json(service, setup_id)["result"]["objects"][0]["T_table_obj"])
+    assert np.allclose(T_refined[:2, 3], np.asarray(wp["T_table_obj"])[:2, 3], atol=0.5)
     rev = setup_json(service, setup_id)["result_revision"]
 
     # confirm: who, when, which revision; then the Export button appears (disabled until export exists)
@@ -275,18 +269,12 @@ def test_setup_upload_review_adjust_refine_confirm(page, service, scene, browser
     assert f"revision {rev}" in page.get_by_test_id("export-status").inner_text()
     export = page.get_by_test_id("export-button")
     assert export.is_visible()
-    with service.client("operator") as c:
-        has_export = any(p.endswith("/export") for p in c.get("/openapi.json").json()["paths"])
-    if has_export:
-        assert export.is_enabled()
-    else:
-        assert export.is_disabled() and "not available" in export.get_attribute("title")
+    assert export.is_enabled()
     page.screenshot(path=str(ARTIFACTS / "setup-confirmed.png"))
-    if has_export:  # this machine has no controller: the reason is shown, nothing is written
-        export.click()
-        page.wait_for_function("() => document.querySelector('[data-testid=export-status]').textContent.includes('Not written')",
-                               timeout=20_000)
-        assert "controller" in page.get_by_test_id("export-status").inner_text().lower()
+    export.click()   # this machine has no controller: the reason is shown, nothing is written
+    page.wait_for_function("() => document.querySelector('[data-testid=export-status]').textContent.includes('Not written')",
+                           timeout=20_000)
+    assert "controller" in page.get_by_test_id("export-status").inner_text().lower()
     assert page.js_errors == []
 
     # history lists it with who confirmed

@@ -107,6 +107,28 @@ def test_symmetric_block_reports_every_equivalent_pose(models, block_scene):
                or abs(Te[2, 3] - res.T_table_obj[2, 3] + 40) < 1e-6 for Te in res.equivalent_poses)
 
 
+@pytest.mark.parametrize("dx, dy, drz_deg", [(0.0, 0.0, 0.0), (18.0, -9.0, 5.0), (-25.0, 12.0, -6.0)])
+def test_refine_from_an_operator_pose_comes_back_to_the_part(models, clamped, dx, dy, drz_deg):
+    """"Refine from here": a start up to ~25 mm and 6 deg off (a drag in the 3D view) is pulled back."""
+    scene, r, T_br, _ = clamped
+    T_start = pose_from_xyz_euler(dx, dy) @ T_br @ pose_from_xyz_euler(c_deg=drz_deg)   # turned about its own origin
+    res = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma,
+                        start_poses=[T_start])
+    assert isinstance(res, ObjectPose), getattr(res, "reason", "")
+    dxy, _, drz = _errors(res.T_table_obj, T_br)
+    assert dxy < 0.4 and drz < 0.15
+    assert "search" not in res.timings_ms      # no global search: only around the start
+
+
+def test_refine_from_a_pose_far_from_the_part_fails_with_the_reason(models, clamped):
+    scene, r, T_br, _ = clamped
+    T_start = pose_from_xyz_euler(-250.0, 120.0, 0.0, 0.0, 0.0, 40.0) @ T_br
+    res = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma,
+                        start_poses=[T_start])
+    assert isinstance(res, ObjectFailure) and res.kind == "not_found"
+    assert "bracket_140 not found" in res.reason
+
+
 @pytest.mark.slow
 def test_recognition_accepts_the_part_and_refuses_absent_ones(models, clamped):
     scene, r, _, _ = clamped
