@@ -288,7 +288,7 @@ class LinuxCncSim:
         self.stop()
 
     # -- independent access through the linuxcnc module ----------------------------------------
-    def _child(self, *args: str, timeout_s: float = 60.0) -> dict | None:
+    def _child(self, *args: str, timeout_s: float = 90.0) -> dict | None:
         r = subprocess.run([SYSTEM_PYTHON, str(CHILD), *args], capture_output=True, text=True, timeout=timeout_s)
         if r.returncode != 0:
             raise SimError(f"lcnc_child {' '.join(args)} failed (rc={r.returncode}): {r.stderr.strip() or r.stdout.strip()}")
@@ -313,7 +313,7 @@ class LinuxCncSim:
         path = self.workdir / name
         path.write_text(text)
         os.chmod(path, 0o644)
-        return self._child("run", str(path), timeout_s=60)
+        return self._child("run", str(path), timeout_s=120)
 
 
 _SHARED: LinuxCncSim | None = None
