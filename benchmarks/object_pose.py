@@ -95,7 +95,11 @@ def library() -> tuple[dict[str, trimesh.Trimesh], list[str], list[str]]:
 
 
 def make_setup(rng, models, work, k: int):
-    """Workpiece k (cycled) near the table centre, maybe clamped, maybe a vise elsewhere."""
+    """Workpiece k (cycled) near the table centre, maybe clamped, maybe a vise elsewhere.
+
+    Physically possible only: a strap clamp is built for the part's height (its nose rests on the
+    part's top, its heel block on the table) and covers at most 15 mm or a fifth of the part; the
+    vise stands only where its footprint clears the part's."""
     name = work[k % len(work)]
     mesh = models[name]
     x, y = rng.uniform(330, 470), rng.uniform(170, 230)
@@ -103,19 +107,23 @@ def make_setup(rng, models, work, k: int):
     objs = [SceneObject(name, mesh, place_on_table(mesh, x, y, c), albedo=float(rng.uniform(0.5, 0.75)))]
     ext = mesh.extents
     if rng.random() < 0.5:   # strap clamps on two opposite sides, noses over the part's edge
-        clamp = "strap_clamp_125"
+        L = 125.0
+        clamp = parts.strap_clamp(L, clamp_height_mm=float(ext[2]) + 3.0)   # nose 3 mm below the strap
+        overlap = min(15.0, 0.2 * float(ext[0]))
         for side in (-1, 1) if rng.random() < 0.6 else (1,):
             ang = np.radians(c) + (0 if side > 0 else np.pi)
-            reach = ext[0] / 2 + 125 * 0.45 - 15
+            reach = ext[0] / 2 - overlap + 0.5 * L        # clamp's box centre to the part's: nose tip `overlap` inside
             cx, cy = x + reach * np.cos(ang), y + reach * np.sin(ang)
-            objs.append(SceneObject(f"{clamp}#{len(objs)}", models[clamp],
-                                    place_on_table(models[clamp], cx, cy, np.degrees(ang) + 180.0 + rng.uniform(-8, 8),
-                                                   z_mm=ext[2] - 40.0 + 0.5 if ext[2] > 40 else 0.0),
+            objs.append(SceneObject(f"strap_clamp_125#{len(objs)}", clamp,
+                                    place_on_table(clamp, cx, cy, np.degrees(ang) + 180.0 + rng.uniform(-8, 8)),
                                     albedo=0.35))
     if rng.random() < 0.3:
-        objs.append(SceneObject("vise_150#d", models["vise_150"],
-                                place_on_table(models["vise_150"], rng.choice([120.0, 680.0]), 200, rng.uniform(0, 360)),
-                                albedo=0.4))
+        vise = models["vise_150"]
+        vx = float(rng.choice([120.0, 680.0]))
+        clear = 0.5 * float(np.hypot(*ext[:2])) + 0.5 * float(np.hypot(*vise.extents[:2])) + 10.0
+        if abs(vx - x) > clear:
+            objs.append(SceneObject("vise_150#d", vise, place_on_table(vise, vx, 200, rng.uniform(0, 360)),
+                                    albedo=0.4))
     return objs
 
 

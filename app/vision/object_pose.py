@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from scipy import fft as sfft
+from scipy import ndimage
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
@@ -395,7 +396,7 @@ def _support_maps(rays, C, z: float, extent_xy, b: float, n_channels: int, tau_b
 
 def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, extent_xy,
                   n_peaks: int, *, px_mm: float, image_score, max_template: int = 400, n_coarse: int = 40,
-                  cache: dict | None = None) -> list[_Hyp]:
+                  cache: dict | None = None, image_score_wide=None, image_score_mid=None) -> list[_Hyp]:
     """Exhaustive oriented chamfer matching of the model's horizontal edges on the table planes.
 
     The image's edge pixels are cast onto each horizontal plane that carries model edges (height
@@ -447,6 +448,10 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     m_xy, m_phi, m_z, wts, _ = template(b / 2, max_template)
     levels = _levels(m_z, max_levels=4, gap_mm=0.5 * b)
     support = [_support_maps(rays, C, float(np.mean(m_z[lv])), extent_xy, b, nch, 1.5) for lv in levels]
+    # support relative to its surroundings (about half the part's size): textured or busy areas,
+    # where every direction has edges everywhere, no longer outscore the part's own outline
+    hp = int(np.clip(2 * round(0.25 * diam / b) + 1, 3, 15))
+    support = [sp - ndimage.uniform_filter(sp, size=(1, hp, hp), mode="nearest") for sp in support]
     Rk = int(np.ceil(np.max(np.linalg.norm(m_xy, axis=1)) / b)) + 2
     ks = 2 * Rk + 1
     # correlation of every (level, channel) support map with the rotated template, summed in the
@@ -480,13 +485,37 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     cx, cy, cth = x0 + ix_ * b, y0 + iy_ * b, it_ * dth
     keep = _nms(cx, cy, cth, 1.5 * b, 1.5 * dth, n_coarse)
     cx, cy, cth = cx[keep], cy[keep], cth[keep]
+    # long straight image edges (slots, shadows, texture) give ridges of high correlation at the
+    # turns that align the template's edges with them and crowd the part's own peak out of the
+    # global ranking: also take the best local maxima of every turn and let the image decide
+    # (wide soft chamfer score with exact perspective), keeping the best n_coarse of both
+    if image_score_wide is not None and nt > 1:
+        k_t = 4
+        loc = (score == ndimage.maximum_filter(score, size=(1, 3, 3), mode="nearest")) & (score > 0)
+        flat_t = np.where(loc, score, -np.inf).reshape(nt, -1)
+        top_t = np.argpartition(-flat_t, k_t - 1, axis=1)[:, :k_t]
+        it2 = np.repeat(np.arange(nt), k_t)
+        cell = top_t.ravel()
+        good = np.isfinite(flat_t[it2, cell])
+        iy2, ix2 = np.divmod(cell[good], nx)
+        ax = np.concatenate([cx, x0 + ix2 * b])
+        ay = np.concatenate([cy, y0 + iy2 * b])
+        at = np.concatenate([cth, it2[good] * dth])
+        _, _, _, w_w, w_sel = template(max(3.0 * px_mm, diam / 60.0), 80)
+        wide = image_score_wide(ax, ay, at, P[w_sel] + np.array([0.0, 0.0, height_mm]), D[w_sel], w_w)
+        order = np.argsort(-wide)
+        keep = _nms(ax[order], ay[order], at[order], 1.5 * b, 1.5 * dth, n_coarse)
+        cx, cy, cth = ax[order][keep], ay[order][keep], at[order][keep]
 
     # ---- fine: re-score the coarse cells' neighbourhoods in the image (exact perspective)
     _, _, _, f_w, f_sel = template(max(2.0 * px_mm, diam / 100.0), 120)
     f_P = P[f_sel] + np.array([0.0, 0.0, height_mm])
     f_D = D[f_sel]
     hx, hy, ht = cx, cy, cth
-    for step_xy, step_th in ((b / 2, dth / 2), (b / 4, dth / 4)):
+    # each step's scorer reaches about as far as the step is coarse (a 2 px scorer cannot see a part
+    # half a coarse cell away)
+    for (step_xy, step_th), image_score in zip(((b / 2, dth / 2), (b / 4, dth / 4)),
+                                               (image_score_wide or image_score, image_score_mid or image_score)):
         g = np.array([-step_xy, 0.0, step_xy])
         gt = np.array([0.0]) if round_part else np.array([-step_th, 0.0, step_th])
         DX, DY, DT = np.meshgrid(g, g, gt, indexing="ij")
@@ -886,16 +915,24 @@ def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, heig
         states = list(resting_states)
     hyps: list[_Hyp] = []
     scorer = _image_scorer(eimg, K, dist, T_cam_table)
+    b_px = float(np.clip(model.diameter_mm / 18.0, 1.5, 16.0)) / max(px_mm, 1e-9)
+    scorer_wide = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(1.2 * b_px, 3.0, 20.0)))
+    scorer_mid = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(0.6 * b_px, 2.5, 10.0)))
     for st in states:
         for h in height_offsets_mm:
             hyps += _plane_search(model, st, float(h), rays, C, extent, n_starts, px_mm=px_mm,
-                                  image_score=scorer, cache=eimg.cache)
+                                  image_score=scorer, cache=eimg.cache, image_score_wide=scorer_wide,
+                                  image_score_mid=scorer_mid)
     timings["search"] = (time.perf_counter() - t) * 1e3
     if not hyps:
         return "the search produced no pose on the table"
     t = time.perf_counter()
     hyps.sort(key=lambda h: -h.votes)
-    hyps = hyps[:n_planar]
+    # votes are not comparable between resting states (a part on its side shows other edges):
+    # keep the best few of every state besides the best overall
+    top = {id(h) for h in hyps[:n_planar]}
+    hyps = hyps[:n_planar] + [h for st in states for h in [g for g in hyps if g.state == st][:3]
+                              if id(h) not in top]
     z_typ = float(np.median(transform_points(T_cam_table, np.array([[*h.T_table_obj[:2, 3], 0.0] for h in hyps]))[:, 2]))
     px_per_mm = K[0, 0] / max(z_typ, 1.0)
     sub_coarse = _sample_subset(model, px_per_mm, 4.0, 400)
@@ -1017,7 +1054,7 @@ def _start_hypotheses(model: PreparedModel, start_poses, T_cam_table, K, dist, e
 
 def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder_models=(), known_models=(),
                   gamma: float = 2.2, height_offsets_mm=(0.0,), free_height: bool = False, resting_states=None,
-                  min_score: float = 0.35, min_margin: float = 0.08, min_distinctiveness: float = 0.1,
+                  min_score: float = 0.5, min_margin: float = 0.1, min_distinctiveness: float = 0.1,
                   max_tilt_deg: float = 0.5, max_sigma_mm: float = 0.2, max_sigma_deg: float = 0.1,
                   n_starts: int = 6, n_planar: int = 10, n_refine: int = 3, max_edges: int = 60000,
                   edge_image: EdgeImage | None = None, sigma_scale: float = 1.0, seed: int = 0,
@@ -1168,10 +1205,19 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
             results = [pol if r is best else r for r in results]
             best = pol
     cands = [{"T_table_obj": r["T"].tolist(), "score": round(r["score"], 4)} for r in results]
-    others = [r for r in results if r is not best and
+    # the part turned over onto another face by a near symmetry (same outline, e.g. a counterbore
+    # underneath) is not a different place: it is a question of the datum, handled below
+    flips = [r for r in results if r is not best and
+             not _same_up_to_symmetry(model, r["T"], best["T"], pos_tol, 4.0, exact_only=True) and
+             _same_up_to_symmetry(model, r["T"], best["T"], pos_tol, 4.0)]
+    # a different pose competes only if it explains about as much of the image (a part upside down
+    # with its pocket hidden is a plain outline: a high share of fewer edges is not a rival)
+    others = [r for r in results if r is not best and all(r is not f for f in flips) and
               not _same_up_to_symmetry(model, r["T"], best["T"], pos_tol, 4.0, exact_only=True)]
     runner = max((r["score"] for r in others), default=float("nan"))
     margin = best["score"] - runner if others else float("nan")
+    rivals = [r for r in others if r["support_px"] >= 0.8 * best["support_px"]]
+    rival_margin = best["score"] - max((r["score"] for r in rivals), default=float("nan"))
     if "sol" not in best["info"]:
         timings["verify"] = (time.perf_counter() - t) * 1e3
         return fail("not_found", f"{name} not found: {best['info'].get('failed', 'the fit did not converge')}",
@@ -1205,25 +1251,17 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
                     f"distinct: moved a few pixels in {weakest} it still fits {best['score'] - distinct_drop:.0%} "
                     f"(need a drop of {min_distinctiveness:.0%}); it lies on straight edges or texture, "
                     f"not on the part", best["score"], cands)
-    if others and margin < min_margin:
+    if rivals and rival_margin < min_margin:
         timings["verify"] = (time.perf_counter() - t) * 1e3
         return fail("ambiguous",
                     f"{name} ambiguous: two different poses fit almost equally well "
-                    f"({best['score']:.0%} and {runner:.0%} of the visible edges, margin "
-                    f"{margin:.0%} < {min_margin:.0%}); take another view or give the pose roughly",
+                    f"({best['score']:.0%} and {best['score'] - rival_margin:.0%} of the visible edges, margin "
+                    f"{rival_margin:.0%} < {min_margin:.0%}); take another view or give the pose roughly",
                     best["score"], cands)
-    # the part flipped onto another face by a near symmetry (same outline, e.g. a pocket hidden
-    # underneath) needs twice the margin: fewer visible edges are easier to support
-    flips = [r for r in others if _same_up_to_symmetry(model, r["T"], best["T"], pos_tol, 4.0)]
+    # turned over: decided by the features only with twice the margin (fewer visible edges are
+    # easier to support); otherwise the place is known and the face up is not -> datum question
     flip_runner = max((r["score"] for r in flips), default=float("nan"))
-    if flips and best["score"] - flip_runner < 2 * min_margin:
-        timings["verify"] = (time.perf_counter() - t) * 1e3
-        return fail("ambiguous",
-                    f"{name} ambiguous: the part fits almost as well turned over onto another face "
-                    f"({best['score']:.0%} and {flip_runner:.0%} of the visible edges, margin "
-                    f"{best['score'] - flip_runner:.0%} < {2 * min_margin:.0%}); its distinguishing "
-                    f"features are not clear in this view; take another view or give the pose roughly",
-                    best["score"], cands)
+    flips_open = [r for r in flips if best["score"] - r["score"] < 2 * min_margin]
 
     # residual tilt: free 6-DoF fit from the flat result
     st = best["state"]
@@ -1241,6 +1279,11 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     if "sol" in info6 and tilt > max_tilt_deg and tilt > 3.0 * tilt_sigma:
         flags.append("tilt")          # the free fit says: not lying flat (pose stays the flat fit)
     T_table_obj, info = best["T"], best["info"]
+    # of the poses that look exactly the same, give the most upright one (the part's CAD z up, as a
+    # 3-axis work offset needs it); which of them is meant stays the operator's choice
+    S_up = max([np.eye(4)] + [s.S for s in model.symmetries if s.exact],
+               key=lambda S: round(float((T_table_obj @ S)[2, 2]), 6))
+    T_table_obj, T6 = T_table_obj @ S_up, T6 @ S_up
     cov, inl, rms = _covariance(info, K, dist, T_cam_table)
     # covariance of (origin position, rotation): origin = c + R(dr)(o - c) + dt
     o = T_table_obj[:3, 3]
@@ -1287,6 +1330,18 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
             ambiguous_datum = True
             listed += near
     equivalent = tuple(T_table_obj @ s.S for s in listed)
+    if flips_open:
+        turned = ", ".join(f"{r['score']:.0%}" for r in flips_open)
+        head = note + "; " if ambiguous_datum else ""
+        note = (f"{head}the part fits almost as well turned over onto another face ({best['score']:.0%} as "
+                f"shown, {turned} turned over): the features that tell the faces apart are not clear in "
+                f"this view, so which face is up is not decided; the turned-over pose is listed, confirm "
+                f"which one is meant")
+        ambiguous_datum = True
+        equivalent += tuple(r["T"] for r in flips_open)
+    elif flips:
+        note += (f"; turned over onto another face it fits clearly worse ({flip_runner:.0%} against "
+                 f"{best['score']:.0%}): the face up is decided")
     if ambiguous_datum:
         flags.append("datum_ambiguous")
     worst_mm = max(sigma["x_mm"], sigma["y_mm"], sigma["z_mm"])
