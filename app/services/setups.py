@@ -152,6 +152,7 @@ def run_setup_job(ctx: JobContext, setup_id: int) -> None:
         image = decode_image(ctx.files.read(capture.image_sha256))
         recognise = not s.models
         candidates = _candidates(session, ctx.files, s.models)
+        (table,) = _candidates(session, ctx.files, [{"model_id": machine.table_model_id, "revision": table_rev.revision}])
         intr = s.intrinsics
     _update(ctx, setup_id, status="running", stages=[], reason="")
     log.info("setup running", extra={"setup_id": setup_id, "candidates": len(candidates)})
@@ -166,7 +167,7 @@ def run_setup_job(ctx: JobContext, setup_id: int) -> None:
 
     try:
         result = localize(image, np.asarray(intr["K"]), np.asarray(intr["dist"]), layout, candidates,
-                          recognise=recognise, on_stage=on_stage)
+                          recognise=recognise, on_stage=on_stage, table_model=table)
     except Exception as exc:  # noqa: BLE001 - a crash must end the job as failed, with a reason
         log.exception("setup crashed", extra={"setup_id": setup_id})
         _update(ctx, setup_id, status="failed", reason=f"internal error in localisation ({exc.__class__.__name__}); "
@@ -219,9 +220,27 @@ def proposed_offset(result: dict, T_machine_table: list, max_tilt_deg: float) ->
     T_obj_datum = np.asarray(wp["T_obj_datum"]) if wp.get("T_obj_datum") else np.eye(4)
     off = work_offset_from_poses(np.asarray(T_machine_table), np.asarray(wp["T_table_obj"]), T_obj_datum,
                                  max_tilt_deg=max_tilt_deg)
-    return {"object": wp["name"], "x_mm": off.x_mm, "y_mm": off.y_mm, "z_mm": off.z_mm, "c_deg": off.c_deg,
-            "a_deg": off.a_deg, "b_deg": off.b_deg, "tilt_deg": off.tilt_deg, "ok": off.ok, "reason": off.reason,
-            "T_machine_datum": off.T_machine_datum.tolist(), "datum_defined": bool(wp.get("T_obj_datum"))}
+    out = {"object": wp["name"], "x_mm": off.x_mm, "y_mm": off.y_mm, "z_mm": off.z_mm, "c_deg": off.c_deg,
+           "a_deg": off.a_deg, "b_deg": off.b_deg, "tilt_deg": off.tilt_deg, "ok": off.ok, "reason": off.reason,
+           "T_machine_datum": off.T_machine_datum.tolist(), "datum_defined": bool(wp.get("T_obj_datum")),
+           "datum_ambiguous": bool(wp.get("datum_ambiguous")), "datum_note": wp.get("datum_note") or "",
+           "datum_choices": []}
+    if datum_undecided(wp):  # the offset each equivalent pose would give: the operator picks one
+        for T in datum_candidates(wp):
+            o = work_offset_from_poses(np.asarray(T_machine_table), T, T_obj_datum, max_tilt_deg=max_tilt_deg)
+            out["datum_choices"].append({"x_mm": o.x_mm, "y_mm": o.y_mm, "z_mm": o.z_mm, "c_deg": o.c_deg})
+    return out
+
+
+def datum_candidates(obj: dict) -> list[np.ndarray]:
+    """The object's pose as located first, then every pose that looks the same in the image."""
+    return [np.asarray(obj["T_table_obj"])] + [np.asarray(T) for T in obj.get("equivalent_poses") or []]
+
+
+def datum_undecided(obj: dict) -> bool:
+    """Several listed poses fit equally and nobody has chosen one (a round part's free turn about
+    its axis lists none: its note says the angle is arbitrary, there is nothing to choose)."""
+    return bool(obj.get("datum_ambiguous")) and bool(obj.get("equivalent_poses"))
 
 
 def review_fields(result: dict, machine, settings) -> dict:
@@ -298,13 +317,49 @@ def _redraw(session: Session, files: FileStore, s: Setup, result: dict) -> str:
     return files.put(session, png_bytes(pic), "image/png")
 
 
+def choose_datum(session: Session, files: FileStore, settings, setup_id: int, *, object_index: int,
+                 choice: int, by: str | None = None) -> Setup:
+    """The operator says which of the equivalent poses is meant (0 = the pose as located) -> revision n+1."""
+    s = get_setup(session, setup_id)
+    _require_located(s)
+    objs = s.result.get("objects", [])
+    if not 0 <= object_index < len(objs):
+        raise Invalid(f"object_index {object_index} out of range: setup {setup_id} has {len(objs)} objects")
+    obj = objs[object_index]
+    cands = datum_candidates(obj)
+    if len(cands) < 2:
+        raise Invalid(f"{obj['name']} has no equivalent poses to choose from")
+    if not 0 <= choice < len(cands):
+        raise Invalid(f"choice {choice} out of range: {obj['name']} has {len(cands)} equivalent poses (0..{len(cands) - 1})")
+    T = cands[choice]
+    T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
+    entry = {**obj, "T_table_obj": T.tolist(), "T_cam_obj": (T_cam_table @ T).tolist(),
+             "equivalent_poses": [c.tolist() for i, c in enumerate(cands) if i != choice],
+             "datum_ambiguous": False,
+             "datum_note": f"datum chosen by {by or 'the operator'}: pose {choice + 1} of {len(cands)} "
+                           f"(the image could not decide: {obj.get('datum_note', '')})",
+             "flags": [f for f in obj.get("flags", []) if f != "datum_ambiguous"] + ["datum chosen by operator"]}
+    result = {**s.result, "objects": [entry if i == object_index else o for i, o in enumerate(objs)]}
+    result = review_fields(result, get_machine(session, s.machine_id), settings)
+    result["overlay_sha256"] = _redraw(session, files, s, result)
+    _new_revision(s, result, f"datum chosen: pose {choice + 1} of {len(cands)}", by)
+    session.add(s)
+    session.flush()
+    return s
+
+
 def confirm_setup(session: Session, setup_id: int, *, result_revision: int, by: str) -> Setup:
-    """Record who confirmed which exact result revision, and when. Only that revision may be exported."""
+    """Record who confirmed which exact result revision, and when. Only that revision may be exported.
+    Refused while a workpiece's datum is undecided (never chosen silently)."""
     s = get_setup(session, setup_id)
     _require_located(s)
     if result_revision != s.result_revision:
         raise Conflict(f"result revision {result_revision} is not the current one ({s.result_revision}); "
                        "reload the setup and confirm what you see")
+    for o in s.result.get("objects", []):
+        if o.get("kind") == "workpiece" and datum_undecided(o):
+            raise Conflict(f"the datum of {o['name']} is not decided: {len(datum_candidates(o))} poses look the "
+                           f"same in this image; choose which one is meant, then confirm")
     s.confirmed_revision, s.confirmed_by, s.confirmed_at = result_revision, by, utcnow()
     s.updated_at = utcnow()
     session.add(s)
@@ -331,8 +386,11 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
     image = decode_image(files.read(session.get(Capture, s.capture_id).image_sha256))
     K, dist = np.asarray(s.intrinsics["K"]), np.asarray(s.intrinsics["dist"])
     T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
+    machine = get_machine(session, s.machine_id)
+    (table,) = _candidates(session, files, [{"model_id": machine.table_model_id, "revision": machine.table_revision}])
     pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(),
-                                     start_poses=[np.asarray(obj["T_table_obj"])])
+                                     start_poses=[np.asarray(obj["T_table_obj"])],
+                                     known_models=((table.prepare(), np.eye(4)),))
     if not pose:
         raise Invalid(f"refinement from this pose failed: {pose.reason}; nudge the part closer to where "
                       "it is in the picture and try again")

@@ -249,12 +249,36 @@ function fillOffset(off, wp) {
     say(u, ok ? "PASS: uncertainty and tilt within tolerance." : `FAIL: ${why}. Adjust or refine, or take a new picture.`,
         ok ? "ok" : "bad");
   }
+  fillDatumChoice(off);
   const notes = [];
   if (off && off.object) notes.push(`Datum of ${off.object}.`);
+  if (off && off.datum_ambiguous && !(off.datum_choices || []).length && off.datum_note) notes.push(`Note: ${off.datum_note}.`);
   if (off && off.datum_defined === false) notes.push("This part has no datum in the library: the offset is its model origin.");
   if (off && off.tilt_deg !== undefined) notes.push(`Tilt ${fmt(off.tilt_deg, 3)}°.`);
   if (!cur) notes.push(state.current && state.current.why ? `Controller: ${state.current.why}` : "Controller not read yet.");
   $("offset-note").textContent = notes.join(" ");
+}
+
+/** A symmetric part: the image cannot say which of the look-alike poses is meant; the operator picks one
+ *  (each button shows the offset it would give). Confirm is refused by the service until then. */
+function fillDatumChoice(off) {
+  const box = $("datum-choice");
+  const choices = (off && off.datum_choices) || [];
+  box.replaceChildren();
+  box.classList.toggle("hidden", choices.length === 0);
+  if (!choices.length) return;
+  const head = document.createElement("div");
+  head.textContent = `Datum not decided: ${choices.length} poses look the same (${off.datum_note}). Which one is meant?`;
+  box.append(head);
+  choices.forEach((c, i) => {
+    const b = document.createElement("button");
+    b.setAttribute("data-testid", "datum-option");
+    b.style.margin = "4px 4px 0 0";
+    b.textContent = `${i === 0 ? "As shown" : `Pose ${i + 1}`}: X ${fmt(c.x_mm, 2)} Y ${fmt(c.y_mm, 2)} Z ${fmt(c.z_mm, 2)} C ${fmt(c.c_deg, 2)}°`;
+    b.addEventListener("click", () => act((s) => postJSON(`/api/v1/setups/${s.id}/datum`,
+      { object_index: workpieceIndex(s.result), choice: i }), `Using pose ${i + 1} as the datum…`));
+    box.append(b);
+  });
 }
 
 /** Read the controller's current offset in the chosen slot (once per machine and slot), then redraw the table. */

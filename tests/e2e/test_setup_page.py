@@ -285,6 +285,56 @@ def test_setup_upload_review_adjust_refine_confirm(page, service, scene, browser
     page.screenshot(path=str(ARTIFACTS / "history.png"))
 
 
+def test_symmetric_part_asks_which_pose_is_meant(page, service, scene):
+    """A plain block looks the same turned over or by 180 deg: the page lists the look-alike poses with the
+    offset each gives, Confirm is refused with the reason until the operator picks one."""
+    from app.synth.scene import Scene, SceneObject, look_at_pose, place_on_table, render_scene
+
+    block = trimesh.creation.box(bounds=[[0, 0, 0], [120, 80, 40]])
+    with service.client("admin") as c:
+        r = c.post("/api/v1/models", files={"file": ("block.stl", trimesh.exchange.stl.export_stl(block))},
+                   data={"kind": "workpiece", "name": "Plain block 120", "units": "mm"})
+        assert r.status_code == 201, r.text
+    T = place_on_table(block, 400.0, 180.0, 30.0)
+    sc = Scene(width=W, height=H, K=scene["K"], dist=np.zeros(5),
+               T_cam_table=look_at_pose(np.array([400.0, -450.0, 650.0]), np.array([400.0, 200.0, 0.0])),
+               table_mesh=trimesh.load(LIBRARY / "tslot_table_800x400.stl"),
+               table_layout=json.loads((LIBRARY / "tslot_table_800x400.fiducials.json").read_text()),
+               objects=[SceneObject("block", block, T)])
+    png = cv2.imencode(".png", render_scene(sc, np.random.default_rng(1)).image)[1].tobytes()
+    page.goto(f"{service.url}/setup?machine={service.machine_id}")
+    page.get_by_test_id("part-select").select_option(label="Plain block 120")
+    page.get_by_test_id("upload-input").set_input_files({"name": "block.png", "mimeType": "image/png", "buffer": png})
+    page.wait_for_function("() => document.querySelector('#progress').classList.contains('done')"
+                           " || document.querySelector('#progress').classList.contains('failed')", timeout=120_000)
+    assert "Located" in page.get_by_test_id("status-message").inner_text()
+    box = page.get_by_test_id("datum-choice")
+    assert box.is_visible() and "Datum not decided" in box.inner_text()
+    options = page.get_by_test_id("datum-option")
+    assert options.count() == 4
+    page.screenshot(path=str(ARTIFACTS / "setup-datum-choice.png"))
+    # confirming now is refused, with the reason on the page
+    page.get_by_test_id("confirm-button").click()
+    page.wait_for_function("() => document.querySelector('[data-testid=status-message]').textContent.includes('not decided')",
+                           timeout=10_000)
+    setup_id = int(urllib.parse.parse_qs(urllib.parse.urlparse(page.url).query)["setup"][0])
+    s = setup_json(service, setup_id)
+    assert s["confirmed_revision"] is None
+    # the operator picks the pose whose X/Y is the truth's corner (the page shows each choice's offset)
+    choices = s["result"]["offset"]["datum_choices"]
+    pick = int(np.argmin([np.hypot(ch["x_mm"] - T[0, 3], ch["y_mm"] - T[1, 3]) for ch in choices]))
+    options.nth(pick).click()
+    rev = s["result_revision"] + 1
+    page.wait_for_function(f"() => document.querySelector('#step').textContent.includes('revision {rev}')", timeout=20_000)
+    assert not box.is_visible()
+    s = setup_json(service, setup_id)
+    assert np.allclose(np.asarray(s["result"]["objects"][0]["T_table_obj"])[:2, 3], T[:2, 3], atol=0.5)
+    page.get_by_test_id("confirm-button").click()
+    page.wait_for_function("() => document.querySelector('[data-testid=export-status]').textContent.includes('Confirmed by')",
+                           timeout=10_000)
+    assert page.js_errors == []
+
+
 def test_failure_is_shown_as_a_reason_with_what_to_do(page, service):
     rng = np.random.default_rng(0)
     blank = np.clip(rng.normal(90, 12, (H, W)), 0, 255).astype(np.uint8)   # no table, no markers

@@ -3,7 +3,9 @@ shows the ground-truth offset within the stated uncertainty (LinuxCNC sim and OP
 
 from __future__ import annotations
 
+import io
 import json
+import time
 
 import cv2
 import numpy as np
@@ -155,3 +157,73 @@ def test_nudge_then_refine_from_here_returns_to_the_part(server):
     assert "refined from the operator's pose" in back["result"]["objects"][0]["flags"]
     with server.client("mes") as c:
         assert c.post(f"/api/v1/setups/{setup['id']}/refine", json={"object_index": 0}).status_code == 403
+
+
+def test_symmetric_part_needs_the_operators_datum_choice_before_confirm(server):
+    """A plain block looks the same turned 180 deg (and flipped): the service lists the look-alike poses
+    with the offset each gives, refuses to confirm until the operator picks one, then records who did."""
+    import trimesh
+
+    from app.synth.scene import SceneObject, place_on_table, random_scene, render_scene
+    from tests.support.scenes import library_mesh
+
+    block = trimesh.creation.box(bounds=[[0, 0, 0], [120, 80, 40]])
+    sc0 = library_scene()
+    rng = np.random.default_rng(11)
+    T = place_on_table(block, 400.0, 200.0, 25.0)
+    scene = random_scene(rng, width=1280, height=800, objects=[SceneObject("block", block, T)],
+                         table_mesh=library_mesh("tslot_table_800x400"), table_layout=sc0.layout,
+                         min_visible_markers=4, distance_mm=(600.0, 900.0))
+    image = render_scene(scene, rng).image
+    buf = io.BytesIO()
+    block.export(buf, file_type="stl")
+    with server.client() as c:
+        r = c.post("/api/v1/models", files={"file": ("block.stl", buf.getvalue())},
+                   data={"kind": "workpiece", "name": "Plain block 120", "units": "mm"})
+        assert r.status_code == 201, r.text
+        model_id = r.json()["id"]
+        tables = c.get("/api/v1/models", params={"kind": "table"}).json()["data"]
+        table = next(t for t in tables if t["key"] == "tslot_table_800x400")
+        cam = c.post("/api/v1/cameras", json={"name": "sym", "intrinsics": {
+            "width": 1280, "height": 800, "K": scene.K.tolist(), "dist": scene.dist.tolist()}}).json()
+        machine_id = c.post("/api/v1/machines", json={
+            "name": "sym-mill", "table_model_id": table["id"], "camera_ids": [cam["id"]],
+            "T_machine_table": T_MACHINE_TABLE.tolist(), "travel_mm": TRAVEL}).json()["id"]
+    png = cv2.imencode(".png", image)[1].tobytes()
+    with server.client("operator") as c:
+        r = c.post("/api/v1/setups", data={"machine_id": str(machine_id), "model_ids": str(model_id)},
+                   files={"image": ("sym.png", png, "image/png")})
+        assert r.status_code == 202, r.text
+        url = r.json()["url"]
+        for _ in range(600):
+            setup = c.get(url).json()
+            if setup["status"] in ("located", "failed"):
+                break
+            time.sleep(0.2)
+        assert setup["status"] == "located", setup["reason"]
+        off = setup["result"]["offset"]
+        obj = setup["result"]["objects"][0]
+        assert obj["datum_ambiguous"] and off["datum_ambiguous"]
+        n = 1 + len(obj["equivalent_poses"])
+        assert n == 4 and len(off["datum_choices"]) == 4
+        # each choice's offset is the located pose's own geometry: all four sit on the block's corners
+        assert off["datum_choices"][0]["x_mm"] == pytest.approx(off["x_mm"], abs=1e-6)
+        r = c.post(f"/api/v1/setups/{setup['id']}/confirm", json={"result_revision": setup["result_revision"]})
+        assert r.status_code == 409 and "datum of Plain block 120 is not decided" in r.json()["detail"]
+        for bad in ({"object_index": 0, "choice": 4}, {"object_index": 3, "choice": 1}):
+            r = c.post(f"/api/v1/setups/{setup['id']}/datum", json=bad)
+            assert r.status_code == 422 and "out of range" in r.json()["detail"], r.text
+        # the operator picks the pose that matches the truth (the one whose origin is the truth's corner)
+        cands = [np.asarray(obj["T_table_obj"])] + [np.asarray(E) for E in obj["equivalent_poses"]]
+        pick = int(np.argmin([np.linalg.norm(E[:3, 3] - T[:3, 3]) for E in cands]))
+        r = c.post(f"/api/v1/setups/{setup['id']}/datum", json={"object_index": 0, "choice": pick})
+        assert r.status_code == 200, r.text
+        s2 = r.json()
+        o2 = s2["result"]["objects"][0]
+        assert s2["result_revision"] == setup["result_revision"] + 1
+        assert not o2["datum_ambiguous"] and "datum chosen by test-operator (operator)" in o2["datum_note"]
+        assert s2["result"]["offset"]["datum_choices"] == []
+        assert np.allclose(np.asarray(o2["T_table_obj"])[:3, 3], T[:3, 3], atol=0.5)
+        assert s2["result"]["offset"]["x_mm"] == pytest.approx(off["datum_choices"][pick]["x_mm"], abs=1e-6)
+        r = c.post(f"/api/v1/setups/{setup['id']}/confirm", json={"result_revision": s2["result_revision"]})
+        assert r.status_code == 200, r.text

@@ -192,6 +192,20 @@ def refine(session: SessionDep, files: FilesDep, settings: SettingsDep, who: Ope
                                        by=who.label()))
 
 
+class DatumBody(BaseModel):
+    object_index: int = Field(ge=0, description="Index into result.objects")
+    choice: int = Field(ge=0, description="0 = the pose as located, k = result.objects[i].equivalent_poses[k-1]")
+
+
+@router.post("/{setup_id}/datum", response_model=SetupPublic,
+             summary="Choose which of the equivalent poses (symmetric part) is meant -> new result revision",
+             responses={422: {"description": "no equivalent poses, or the choice is out of range"}})
+def choose_datum(session: SessionDep, files: FilesDep, settings: SettingsDep, who: OperatorPrincipal, setup_id: int,
+                 body: DatumBody) -> SetupPublic:
+    return to_public(svc.choose_datum(session, files, settings, setup_id, object_index=body.object_index,
+                                      choice=body.choice, by=who.label()))
+
+
 class ConfirmBody(BaseModel):
     result_revision: int = Field(ge=1, description="The result revision the operator saw and confirms")
 
