@@ -13,7 +13,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Prints poses as 4x4 lists in mm; T_table_obj = inv(T_cam_table) @ T_cam_obj.")
     p.add_argument("--image", required=True, help="image of table and workpiece (JPEG/PNG)")
     p.add_argument("--intrinsics", required=True, help="camera intrinsics JSON (DESIGN format)")
-    p.add_argument("--table", help="table mesh (for reference; the table is located by its markers)")
+    p.add_argument("--table", help="table mesh in the table frame (the table is located by its markers; its own "
+                                   "edges - border, slots - are then kept from being taken for a part's)")
     p.add_argument("--layout", required=True, help="fiducial layout JSON of the table")
     p.add_argument("--model", action="append", default=[], help="a part to locate (STL/OBJ/PLY/GLB/STEP, mm); repeatable")
     p.add_argument("--clamp", action="append", default=[], help="a clamp/vise to locate (mesh file, mm); repeatable")
@@ -60,10 +61,17 @@ def run(args: argparse.Namespace) -> int:
         cam = load_intrinsics(args.intrinsics)
         layout = json.loads(Path(args.layout).read_text())
         candidates, recognise = _load_candidates(args)
+        table = None
+        if args.table:
+            from app.geometry.mesh import load_mesh
+            from app.vision.localize import Candidate
+
+            table = Candidate(name=Path(args.table).stem, kind="table",
+                              mesh=load_mesh(Path(args.table).read_bytes(), args.table, "mm"))
     except (OSError, ValueError) as exc:
         print(f"setupcam localize: {exc}", file=sys.stderr)
         return 2
-    result = localize(image, cam.K_array, cam.dist_array, layout, candidates, recognise=recognise)
+    result = localize(image, cam.K_array, cam.dist_array, layout, candidates, recognise=recognise, table_model=table)
     if args.overlay:
         cv2.imwrite(args.overlay, result.overlay)
     if args.json:

@@ -33,7 +33,7 @@ class Candidate:
 
     name: str
     mesh: trimesh.Trimesh
-    kind: str = "workpiece"                  # workpiece | clamp
+    kind: str = "workpiece"                  # workpiece | clamp | table
     model_id: int | None = None
     revision: int | None = None
     T_obj_datum: np.ndarray | None = None
@@ -41,7 +41,8 @@ class Candidate:
 
     def prepare(self) -> PreparedModel:
         if self.prepared is None:
-            self.prepared = prepare_model(self.mesh, self.name)
+            # a table is never searched for, only masked out: its symmetry does not matter
+            self.prepared = prepare_model(self.mesh, self.name, detect_symmetry=self.kind != "table")
         return self.prepared
 
 
@@ -97,7 +98,7 @@ def draw_overlay(image: np.ndarray, K, dist, table_result, located: list[tuple[C
 def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: dict,
              candidates: list[Candidate], *, recognise: bool = False,
              on_stage: Callable[[Stage], None] | None = None, min_score: float = 0.5,
-             min_margin: float = 0.1, height_offsets_mm=(0.0,)) -> LocalizeResult:
+             min_margin: float = 0.1, height_offsets_mm=(0.0,), table_model: Candidate | None = None) -> LocalizeResult:
     """Locate the table and the candidates in one image.
 
     Parameters
@@ -108,6 +109,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     candidates : models to locate (``recognise=False``: each is expected) or to choose from
         (``recognise=True``: those recognised with a margin are accepted)
     on_stage : called with each finished :class:`Stage`
+    table_model : the table's own model (its frame is the table frame): its border, slots and steps are
+        removed from the image's edges before objects are searched (they are not the part)
     """
     K = np.asarray(K, float)
     dist = np.asarray(dist, float).ravel()
@@ -134,6 +137,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                tdict, table_pic))
     T_cam_table = table.T_cam_table
 
+    known = ((table_model.prepare(), np.eye(4)),) if table_model is not None else ()
     # --- objects: clamps first (they occlude the workpiece), then workpieces
     ordered = sorted(candidates, key=lambda c: 0 if c.kind == "clamp" else 1)
     located: list[tuple[Candidate, Any]] = []
@@ -142,7 +146,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         t = time.perf_counter()
         prepared = [c.prepare() for c in ordered]
         rec = object_pose.recognise(image, K, dist, T_cam_table, prepared, min_score=max(min_score, 0.6),
-                                    min_margin=min_margin, height_offsets_mm=height_offsets_mm)
+                                    min_margin=min_margin, height_offsets_mm=height_offsets_mm, known_models=known)
         by_name = {c.name: c for c in ordered}
         for pose in rec.accepted:
             located.append((by_name[pose.model_name], pose))
@@ -157,7 +161,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
             occluders = [(c.prepare(), p.T_table_obj) for c, p in located if isinstance(p, object_pose.ObjectPose)]
             pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(), occluder_models=occluders,
                                              min_score=min_score, min_margin=min_margin,
-                                             height_offsets_mm=height_offsets_mm)
+                                             height_offsets_mm=height_offsets_mm, known_models=known)
             ms = (time.perf_counter() - t) * 1e3
             if pose:
                 located.append((cand, pose))
