@@ -60,6 +60,12 @@ def plan(session: Session, files: FileStore, request: dict[str, Any]) -> dict:
 def probing_program(session: Session, files: FileStore, setup_id: int, *, dry_run: bool,
                     wcs: str = "G54") -> str:
     """LinuxCNC probing program for the confirmed workpiece of a setup (table frame as program frame)."""
+    return probing_plan(session, files, setup_id, dry_run=dry_run, wcs=wcs).gcode
+
+
+def probing_plan(session: Session, files: FileStore, setup_id: int, *, dry_run: bool = True,
+                 wcs: str = "G54"):
+    """The probing program with its touches and safe travel paths (table frame, mm): ProbingProgram."""
     from app.planning.obstacles import height_grid_from_meshes
     from app.planning.path import ProbeParams
     from app.planning.probing import ProbingParams, choose_touch_points, probing_gcode
@@ -83,7 +89,7 @@ def probing_program(session: Session, files: FileStore, setup_id: int, *, dry_ru
                                 dry_run=dry_run, wcs=wcs, title=f"setupcam probing, setup {setup_id}")
     except ValueError as exc:
         raise Invalid(f"probing program: {exc}") from None
-    return program.gcode
+    return program
 
 
 def _touches(session: Session, files: FileStore, setup_id: int):

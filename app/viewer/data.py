@@ -20,7 +20,7 @@ from app.services.machines import get_machine
 from app.store.db import session_scope
 from app.store.files import FileStore
 from app.store.models import Capture
-from app.viewer.scene import DEFAULT_OBJECT_RGB, SetupView, ViewCamera, ViewObject
+from app.viewer.scene import DEFAULT_OBJECT_RGB, TOUCH_RGB, SetupView, ViewCamera, ViewObject, ViewPath
 
 
 class MeshCache:
@@ -48,11 +48,28 @@ class MeshCache:
         return mesh, rev.revision
 
 
-def setup_revision(engine, setup_id: int) -> tuple[int, str]:
-    """(result_revision, status) of a setup: the cheap check the viewer polls."""
+def setup_version(engine, setup_id: int) -> tuple:
+    """What a setup's 3D view depends on: (result revision, confirmed revision); polled by the viewer."""
     with session_scope(engine) as session:
         s = setup_svc.get_setup(session, setup_id)
-        return s.result_revision, s.status
+        return s.result_revision, s.confirmed_revision
+
+
+def probing_paths(session, files: FileStore, setup) -> tuple[tuple[ViewPath, ...], str]:
+    """The probing plan of a confirmed setup as paths to draw (safe travel, and each touch move from its
+    approach point to the expected contact), or none and why."""
+    from app.services import planning
+
+    if setup.confirmed_revision is None or setup.confirmed_revision != setup.result_revision:
+        return (), "the probing plan is drawn once the setup is confirmed"
+    try:
+        prog = planning.probing_plan(session, files, setup.id, dry_run=True)
+    except ServiceError as exc:
+        return (), f"no probing plan: {exc.detail}"
+    paths = [ViewPath(f"travel{i}", np.asarray([w for w in p.waypoints], float)) for i, p in enumerate(prog.travel)]
+    paths += [ViewPath(f"touch_{t.name}", np.asarray([t.approach_tip, t.contact_tip], float), TOUCH_RGB)
+              for t in prog.touches]
+    return tuple(paths), ""
 
 
 def _rgb(bgr) -> tuple[int, int, int]:
@@ -89,8 +106,10 @@ def load_setup_view(engine, files: FileStore, meshes: MeshCache, setup_id: int) 
                 camera = ViewCamera(T_cam_table=np.asarray(table["T_cam_table"], float),
                                     K=np.asarray(s.intrinsics["K"], float), width=int(s.intrinsics["width"]),
                                     height=int(s.intrinsics["height"]), image_rgb=img[:, :, ::-1].copy())
+            paths, why = probing_paths(session, files, s)
             return SetupView(title=f"Setup {s.id}", revision=s.result_revision, table_mesh=table_mesh,
-                             objects=tuple(objects), camera=camera, editable=editable)
+                             objects=tuple(objects), camera=camera, editable=editable, paths=paths,
+                             notes=(why,) if why else (), version=(s.result_revision, s.confirmed_revision))
     except ServiceError as exc:
         return exc.detail if isinstance(exc.detail, str) else str(exc.detail)
 

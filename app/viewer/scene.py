@@ -10,6 +10,8 @@ Scene tree (names are stable, tests look them up in the browser):
 * ``/objects/o{i}``                object ``i`` at ``T_table_obj`` (a transform gizmo when editable,
                                    else a plain frame); its mesh is the child ``/objects/o{i}/mesh``
 * ``/camera``                      the camera frustum at ``inv(T_cam_table)`` showing the image
+* ``/paths/{name}``                planned paths (e.g. the probing program's safe travel and its touch
+                                   moves) as line segments, table frame
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ TABLE_RGB = (150, 154, 162)
 FRUSTUM_RGB = (220, 60, 60)
 DEFAULT_OBJECT_RGB = (40, 200, 60)
 FRUSTUM_IMAGE_WIDTH_PX = 480     # the camera image shown on the frustum is downscaled to this width
+TRAVEL_RGB = (30, 110, 240)
+TOUCH_RGB = (240, 140, 0)
 
 
 def pose_to_viser(T_a_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -73,6 +77,15 @@ class ViewCamera:
 
 
 @dataclass(frozen=True, eq=False)
+class ViewPath:
+    """A planned path: polyline of tool-tip positions in the table frame (N, 3), mm."""
+
+    name: str
+    points_mm: np.ndarray
+    rgb: tuple[int, int, int] = TRAVEL_RGB
+
+
+@dataclass(frozen=True, eq=False)
 class SetupView:
     """Everything the 3D view of one setup shows. ``editable``: index into ``objects`` of the one that
     carries the adjust gizmo (the workpiece), or None."""
@@ -84,6 +97,8 @@ class SetupView:
     camera: ViewCamera | None = None
     editable: int | None = None
     notes: tuple[str, ...] = field(default_factory=tuple)
+    paths: tuple[ViewPath, ...] = ()
+    version: tuple = ()       # changes whenever what is shown changes (the viewer polls it)
 
 
 @dataclass(eq=False)
@@ -93,6 +108,8 @@ class SceneHandles:
     frames: list[Any]
     gizmo_index: int | None
     frustum: Any | None
+    scene: Any = None
+    paths: list[Any] = field(default_factory=list)
 
 
 def frustum_geometry(cam: ViewCamera) -> dict:
@@ -174,7 +191,29 @@ def build_setup_scene(scene, view: SetupView,
         frustum = scene.add_camera_frustum("/camera", fov=g["fov_rad"], aspect=g["aspect"], scale=0.1,
                                            thickness=2.0, thickness_units="screen", image=image, wxyz=wxyz,
                                            position=pos, color=FRUSTUM_RGB)
-    return SceneHandles(frames=frames, gizmo_index=gizmo_index, frustum=frustum)
+    handles = SceneHandles(frames=frames, gizmo_index=gizmo_index, frustum=frustum, scene=scene)
+    _add_paths(handles, view)
+    return handles
+
+
+def _add_paths(handles: SceneHandles, view: SetupView) -> None:
+    for p in view.paths:
+        pts = np.asarray(p.points_mm, float).reshape(-1, 3) * M_PER_MM
+        if len(pts) < 2:
+            continue
+        segs = np.stack([pts[:-1], pts[1:]], axis=1).astype(np.float32)     # (N-1, 2, 3)
+        handles.paths.append(handles.scene.add_line_segments(
+            f"/paths/{p.name}", segs, colors=tuple(int(c) for c in p.rgb), thickness=3.0,
+            thickness_units="screen"))
+
+
+def update_paths(handles: SceneHandles, view: SetupView) -> None:
+    """Replace the drawn paths by those of ``view`` (e.g. the probing plan once the setup is confirmed)."""
+    for h in handles.paths:
+        h.remove()
+    handles.paths.clear()
+    if handles.scene is not None:
+        _add_paths(handles, view)
 
 
 def move_objects(handles: SceneHandles, view: SetupView) -> None:

@@ -5,8 +5,9 @@ A browser opens ``/viewer/setup/<id>/`` (or ``/viewer/model/<id>/``) on the serv
 On connect we read that path and build the scene into ``client.scene`` only, so two operators looking
 at two setups never see each other's.
 
-A light poll thread (every ``poll_s``) compares each open setup's ``result_revision`` with the one on
-screen and moves the objects when a nudge, a refine or another browser's gizmo made a new revision.
+A light poll thread (every ``poll_s``) compares each open setup's version (result revision, confirmed
+revision) with the one on screen and moves the objects when a nudge, a refine or another browser's gizmo
+made a new revision, and draws the probing plan once the setup is confirmed.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from app.viewer.scene import SceneHandles, SetupView, build_setup_scene, initial_camera, move_objects
+from app.viewer.scene import (SceneHandles, SetupView, build_setup_scene, initial_camera, move_objects,
+                              update_paths)
 
 log = logging.getLogger(__name__)
 
@@ -46,21 +48,23 @@ class _ClientView:
     ident: int
     revision: int
     handles: SceneHandles | None
+    version: tuple = ()
 
 
 class ViewerServer:
     """viser + per-client scenes.
 
     load(kind, ident) -> SetupView | str : the scene data, or a sentence why there is none.
-    revision(ident) -> int : current result revision of a setup (cheap; polled).
+    version(ident) -> tuple : what a setup's view depends on, e.g. (result revision, confirmed revision)
+        (cheap; polled: a change reloads the view, moves the objects and redraws the paths).
     on_move(setup_id, object_index, T_table_obj_mm, who) -> bool : the operator released the gizmo; False when
         the move was refused (the part is then put back where the result has it).
     """
 
-    def __init__(self, load: Callable[[str, int], SetupView | str], revision: Callable[[int], int],
+    def __init__(self, load: Callable[[str, int], SetupView | str], version: Callable[[int], tuple],
                  on_move: Callable[[int, int, np.ndarray, str], bool] | None = None,
                  host: str = "127.0.0.1", port: int = 8081, poll_s: float = 1.0):
-        self._load, self._revision, self._on_move = load, revision, on_move
+        self._load, self._version, self._on_move = load, version, on_move
         self.host, self.requested_port, self.poll_s = host, port, poll_s
         self._clients: dict[int, _ClientView] = {}
         self._lock = threading.Lock()
@@ -138,7 +142,7 @@ class ViewerServer:
         client.camera.position = tuple(pos)
         client.camera.look_at = tuple(look)
         with self._lock:
-            self._clients[client.client_id] = _ClientView(kind, ident, view.revision, handles)
+            self._clients[client.client_id] = _ClientView(kind, ident, view.revision, handles, view.version)
 
     def _disconnected(self, client) -> None:
         with self._lock:
@@ -162,13 +166,13 @@ class ViewerServer:
                 views = [(cid, v) for cid, v in self._clients.items() if v.kind == "setup" and v.handles is not None]
             for cid, v in views:
                 try:
-                    rev = self._revision(v.ident)
-                    if rev == v.revision:
+                    if tuple(self._version(v.ident)) == v.version:
                         continue
                     view = self._load("setup", v.ident)
                     if isinstance(view, str) or len(view.objects) != len(v.handles.frames):
                         continue
                     move_objects(v.handles, view)
-                    v.revision = view.revision
+                    update_paths(v.handles, view)
+                    v.revision, v.version = view.revision, view.version
                 except Exception:  # noqa: BLE001 - keep polling the others
                     log.exception("viewer: refresh failed", extra={"client": cid, "setup_id": v.ident})

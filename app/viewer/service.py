@@ -9,7 +9,7 @@ import logging
 import numpy as np
 
 from app.store.db import session_scope
-from app.viewer.data import MeshCache, load_model_view, load_setup_view, setup_revision
+from app.viewer.data import MeshCache, load_model_view, load_setup_view, setup_version
 from app.viewer.server import ViewerServer
 
 log = logging.getLogger(__name__)
@@ -38,7 +38,7 @@ def start_viewer(app) -> ViewerServer:
             log.warning("viewer: adjustment refused", extra={"setup_id": setup_id, "reason": exc.detail})
             return False
 
-    viewer = ViewerServer(load, lambda sid: setup_revision(engine, sid)[0], on_move, port=settings.viser_port)
+    viewer = ViewerServer(load, lambda sid: setup_version(engine, sid), on_move, port=settings.viser_port)
     app.state.viewer = viewer.start()
     return viewer
 

@@ -267,6 +267,11 @@ def test_setup_upload_review_adjust_refine_confirm(page, service, scene, browser
     s = setup_json(service, setup_id)
     assert s["confirmed_revision"] == rev and s["confirmed_by"] == "test-operator (operator)"
     assert f"revision {rev}" in page.get_by_test_id("export-status").inner_text()
+    # once confirmed, the 3D view draws the probing plan: safe travel and the touch moves
+    viewer.wait_for_function("() => window.__viserMutable.nodeRefFromName['/paths/travel0']"
+                             " && window.__viserMutable.nodeRefFromName['/paths/touch_x']", timeout=30_000)
+    page.wait_for_timeout(800)
+    page.get_by_test_id("viewer-frame").screenshot(path=str(ARTIFACTS / "setup-probing-plan-3d.png"))
     export = page.get_by_test_id("export-button")
     assert export.is_visible()
     assert export.is_enabled()

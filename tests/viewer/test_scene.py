@@ -7,8 +7,9 @@ import pytest
 import trimesh
 
 from app.geometry.transforms import inv, pose_from_xyz_euler, rotation_angle_deg
-from app.viewer.scene import (M_PER_MM, SetupView, ViewCamera, ViewObject, build_setup_scene, frustum_geometry,
-                              initial_camera, move_objects, pose_to_viser, viser_to_pose)
+from app.viewer.scene import (M_PER_MM, SetupView, ViewCamera, ViewObject, ViewPath, build_setup_scene,
+                              frustum_geometry, initial_camera, move_objects, pose_to_viser, update_paths,
+                              viser_to_pose)
 from app.viewer.server import parse_view_path, parse_viewer
 
 
@@ -17,6 +18,10 @@ class Handle:
         self.kind, self.name, self.kw = kind, name, kw
         self.wxyz, self.position = kw.get("wxyz"), kw.get("position")
         self.callbacks = []
+        self.removed = False
+
+    def remove(self):
+        self.removed = True
 
     def on_update(self, cb):
         self.callbacks.append(cb)
@@ -48,6 +53,9 @@ class FakeScene:
 
     def add_camera_frustum(self, name, **kw):
         return self._add("frustum", name, **kw)
+
+    def add_line_segments(self, name, points, **kw):
+        return self._add("lines", name, points=points, **kw)
 
 
 def view(rng) -> SetupView:
@@ -132,3 +140,22 @@ def test_parse_viewer_from_the_relay_query():
     assert parse_viewer("/setup/5?who=anna%20%28operator%29&person=1") == ("anna (operator)", True)
     assert parse_viewer("/setup/5?who=mes%20%28mes%20key%29&person=0") == ("mes (mes key)", False)
     assert parse_viewer("/setup/5") == (None, False)     # straight to viser's port: look, don't touch
+
+
+def test_paths_are_drawn_in_metres_and_replaced_on_a_new_version():
+    import dataclasses
+
+    v = view(np.random.default_rng(0))
+    scene = FakeScene()
+    h = build_setup_scene(scene, v)
+    assert not any(n.startswith("/paths/") for n in scene.nodes)          # nothing planned yet
+    travel = ViewPath("travel0", np.array([[20.0, 20.0, 100.0], [20.0, 20.0, 60.0], [250.0, 140.0, 60.0]]))
+    touch = ViewPath("touch_x", np.array([[255.0, 140.0, 10.0], [250.5, 140.0, 10.0]]), (240, 140, 0))
+    update_paths(h, dataclasses.replace(v, paths=(travel, touch)))
+    seg = scene.nodes["/paths/travel0"].kw["points"]
+    assert seg.shape == (2, 2, 3)                                           # N points -> N-1 segments
+    np.testing.assert_allclose(seg[1], [[0.020, 0.020, 0.060], [0.250, 0.140, 0.060]], atol=1e-6)
+    assert scene.nodes["/paths/touch_x"].kw["colors"] == (240, 140, 0)
+    old = scene.nodes["/paths/travel0"]
+    update_paths(h, dataclasses.replace(v, paths=()))
+    assert old.removed and h.paths == []
