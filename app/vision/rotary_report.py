@@ -38,6 +38,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
+import html
+
 import cv2
 import numpy as np
 
@@ -102,6 +104,17 @@ class Iso230Report:
         d = {k: clean(v) for k, v in asdict(self).items() if k != "positions"}
         d["positions"] = [{k: clean(v) for k, v in asdict(p).items()} for p in self.positions]
         return d
+
+
+def caption(report) -> str:
+    """One line for a plot: A, E, B, R in arc seconds; a figure that needs more runs says so."""
+    def f(v: float) -> str:
+        return f'{v:.2f}"' if np.isfinite(v) else "n/a"
+    text = (f"A = {f(report.accuracy_arcsec)}, E = {f(report.systematic_arcsec)}, "
+            f"B = {f(report.reversal_B_arcsec)}, R = {f(report.repeatability_arcsec)}")
+    if not np.isfinite(report.repeatability_arcsec):
+        text += " (R needs 2+ runs each way)"
+    return text
 
 
 def _nanmax(v: list[float]) -> float:
@@ -354,9 +367,7 @@ def plot_svg(angles_deg: Sequence[float], error_arcsec: Sequence[float], report:
             for a, b in zip(s.x, s.y):
                 out.append(f'<circle cx="{float(tx(a)):.1f}" cy="{float(ty(b)):.1f}" r="3" fill="{col}"/>')
         out.append(f'<text x="{width - R - 80}" y="{T + 16 + 16 * k}" fill="{col}">{s.name}</text>')
-    out.append(f'<text x="{L + 6}" y="{T + 16}">A = {report.accuracy_arcsec:.2f}", '
-               f'E = {report.systematic_arcsec:.2f}", B = {report.reversal_B_arcsec:.2f}", '
-               f'R = {report.repeatability_arcsec:.2f}"</text>')
+    out.append(f'<text x="{L + 6}" y="{T + 16}">{html.escape(caption(report))}</text>')
     out.append("</svg>")
     return "\n".join(out) + "\n"
 
@@ -397,9 +408,7 @@ def plot_png(angles_deg: Sequence[float], error_arcsec: Sequence[float], report:
                 cv2.circle(img, (int(round(float(tx(a)))), int(round(float(ty(b))))), 3, bgr, -1,
                            cv2.LINE_AA)
         cv2.putText(img, s.name, (width - R - 80, T + 16 + 16 * k), font, 0.45, bgr, 1, cv2.LINE_AA)
-    cv2.putText(img, f"A={report.accuracy_arcsec:.2f}\" E={report.systematic_arcsec:.2f}\" "
-                f"B={report.reversal_B_arcsec:.2f}\" R={report.repeatability_arcsec:.2f}\"",
-                (L + 6, T + 32), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(img, caption(report), (L + 6, T + 32), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     ok, buf = cv2.imencode(".png", img)
     return buf.tobytes()
 

@@ -39,6 +39,9 @@ def test_single_run_has_no_repeatability_but_valid_json():
     assert np.isnan(rep.repeatability_up_arcsec)
     d = rep.to_dict()
     assert d["repeatability_up_arcsec"] is None and d["systematic_up_arcsec"] == 2.0
+    from app.vision.rotary_report import caption
+    text = caption(rep)          # what the plots print: no "nan", the reason instead
+    assert "nan" not in text.lower() and "R = n/a (R needs 2+ runs each way)" in text
 
 
 def test_compensation_proposals_cancel_the_injected_curve(tmp_path):
