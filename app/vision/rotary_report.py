@@ -32,13 +32,12 @@ before entering anything, and measure again after compensating.
 from __future__ import annotations
 
 import csv
+import html
 import io
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Sequence
-
-import html
 
 import cv2
 import numpy as np

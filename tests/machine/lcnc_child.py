@@ -87,7 +87,7 @@ def main(argv):
     elif cmd == "run":  # start a program file in auto mode and wait until it moves
         errors = linuxcnc.error_channel()
         c.mode(linuxcnc.MODE_AUTO); c.wait_complete()
-        _wait(s, lambda: s.task_mode == linuxcnc.MODE_AUTO, lambda: f"auto mode (controller says: {errors.poll()})")
+        _wait(s, lambda: s.task_mode == linuxcnc.MODE_AUTO, lambda: f"auto mode (controller says: {errors.poll()}; status {_status(s)})")
         c.program_open(argv[2]); c.wait_complete()
         c.auto(linuxcnc.AUTO_RUN, 0)
         _wait(s, lambda: s.interp_state != linuxcnc.INTERP_IDLE, lambda: f"program started (controller says: {errors.poll()})")
