@@ -371,7 +371,7 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
                   by: str | None = None) -> Setup:
     """"Refine from here": the edge fit started at the object's current (e.g. adjusted) pose -> revision n+1."""
     from app.vision import object_pose
-    from app.vision.localize import _object_entry
+    from app.vision.localize import _object_entry, marker_labels_table
 
     s = get_setup(session, setup_id)
     _require_located(s)
@@ -388,9 +388,11 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
     T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
     machine = get_machine(session, s.machine_id)
     (table,) = _candidates(session, files, [{"model_id": machine.table_model_id, "revision": machine.table_revision}])
+    layout = library.get_revision(session, machine.table_model_id, machine.table_revision).fiducials
     pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(),
                                      start_poses=[np.asarray(obj["T_table_obj"])],
-                                     known_models=((table.prepare(), np.eye(4)),))
+                                     known_models=((table.prepare(), np.eye(4)),),
+                                     known_regions=marker_labels_table(layout or {}))
     if not pose:
         raise Invalid(f"refinement from this pose failed: {pose.reason}; nudge the part closer to where "
                       "it is in the picture and try again")

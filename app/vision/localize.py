@@ -84,6 +84,19 @@ def _object_entry(cand: Candidate, pose: object_pose.ObjectPose, colour) -> dict
     return d
 
 
+def marker_labels_table(layout: dict, scale: float = 1.4) -> list[np.ndarray]:
+    """The printed marker labels on the table (table frame, mm, (4, 3) each): the black square grown
+    by ``scale`` about its centre to take in the white quiet zone (one cell of a 5x5 code is 1.29)."""
+    from app.vision.fiducials import marker_corners_table_mm
+
+    out = []
+    for m in layout.get("markers", []):
+        c = marker_corners_table_mm(m)
+        centre = c.mean(axis=0)
+        out.append(centre + scale * (c - centre))
+    return out
+
+
 def draw_overlay(image: np.ndarray, K, dist, table_result, located: list[tuple[Candidate, Any]]) -> np.ndarray:
     """The operator's picture: markers (used green, rejected red) and each object's fitted edges."""
     out = draw_table(image, table_result) if table_result is not None else (
@@ -138,6 +151,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     T_cam_table = table.T_cam_table
 
     known = ((table_model.prepare(), np.eye(4)),) if table_model is not None else ()
+    labels = marker_labels_table(table_layout)
     # --- objects: clamps first (they occlude the workpiece), then workpieces
     ordered = sorted(candidates, key=lambda c: 0 if c.kind == "clamp" else 1)
     located: list[tuple[Candidate, Any]] = []
@@ -146,7 +160,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         t = time.perf_counter()
         prepared = [c.prepare() for c in ordered]
         rec = object_pose.recognise(image, K, dist, T_cam_table, prepared, min_score=max(min_score, 0.6),
-                                    min_margin=min_margin, height_offsets_mm=height_offsets_mm, known_models=known)
+                                    min_margin=min_margin, height_offsets_mm=height_offsets_mm, known_models=known,
+                                    known_regions=labels)
         by_name = {c.name: c for c in ordered}
         for pose in rec.accepted:
             located.append((by_name[pose.model_name], pose))
@@ -161,7 +176,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
             occluders = [(c.prepare(), p.T_table_obj) for c, p in located if isinstance(p, object_pose.ObjectPose)]
             pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(), occluder_models=occluders,
                                              min_score=min_score, min_margin=min_margin,
-                                             height_offsets_mm=height_offsets_mm, known_models=known)
+                                             height_offsets_mm=height_offsets_mm, known_models=known,
+                                             known_regions=labels)
             ms = (time.perf_counter() - t) * 1e3
             if pose:
                 located.append((cand, pose))

@@ -14,7 +14,7 @@ from app.geometry.transforms import inv, pose_from_xyz_euler
 from app.synth.scene import Scene, SceneObject, look_at_pose, place_on_table, render_scene
 from app.synth.table import box_table_layout, box_table_mesh
 from app.vision.object_pose import (ObjectFailure, ObjectPose, draw_object, locate_object, mask_known_edges,
-                                    prepare_image, recognise)
+                                    mask_table_regions, prepare_image, recognise)
 
 W, H = 960, 600
 K = np.array([[950.0, 0, 478.0], [0, 950.0, 302.0], [0, 0, 1]])
@@ -127,6 +127,24 @@ def test_refine_from_a_pose_far_from_the_part_fails_with_the_reason(models, clam
                         start_poses=[T_start])
     assert isinstance(res, ObjectFailure) and res.kind == "not_found"
     assert "bracket_140 not found" in res.reason
+
+
+def test_table_regions_remove_only_the_edges_inside_them(clamped):
+    """Printed marker labels are masked as regions of the table top: edges inside go, others stay."""
+    scene, r, T_br, _ = clamped
+    eimg = prepare_image(r.image, gamma=scene.gamma)
+    x, y = T_br[0, 3], T_br[1, 3]
+    far = [np.array([[50.0, 50, 0], [90, 50, 0], [90, 90, 0], [50, 90, 0]])]     # a table corner, no part
+    kept = mask_table_regions(eimg, far, scene.T_cam_table, K, DIST)
+    over = [np.array([[x - 120, y - 120, 0], [x + 120, y - 120, 0], [x + 120, y + 120, 0], [x - 120, y + 120, 0]])]
+    gone = mask_table_regions(eimg, over, scene.T_cam_table, K, DIST)
+    n = len(eimg.edge_uv)
+    assert n - len(kept.edge_uv) < 0.05 * n            # the corner region had few edges of its own
+    assert len(gone.edge_uv) < 0.85 * n                # the part's footprint held many of them
+    # the part's own edges masked: it is not found there any more
+    res = locate_object(None, K, DIST, scene.T_cam_table, prepare_model(parts.bracket_140(), "bracket_140"),
+                        edge_image=gone)
+    assert isinstance(res, ObjectFailure)
 
 
 @pytest.mark.slow
