@@ -264,16 +264,22 @@ def _require_located(s: Setup) -> None:
         raise Invalid(f"setup {s.id} is {s.status}; only a located setup can be adjusted or confirmed")
 
 
-def adjust_object(session: Session, files: FileStore, settings, setup_id: int, *, object_index: int,
-                  T_table_obj: list | None = None, nudge: dict | None = None, by: str | None = None) -> Setup:
-    """Operator adjustment: a new pose (or a nudge in table x/y/z mm and C deg) -> result revision n+1."""
-    from app.geometry.transforms import PoseError, check_pose, make_pose, pose_from_xyz_euler
-
+def _located_objects(session: Session, setup_id: int, object_index: int) -> tuple[Setup, list[dict]]:
+    """A located setup and its result objects, ``object_index`` checked against them."""
     s = get_setup(session, setup_id)
     _require_located(s)
     objs = s.result.get("objects", [])
     if not 0 <= object_index < len(objs):
         raise Invalid(f"object_index {object_index} out of range: setup {setup_id} has {len(objs)} objects")
+    return s, objs
+
+
+def adjust_object(session: Session, files: FileStore, settings, setup_id: int, *, object_index: int,
+                  T_table_obj: list | None = None, nudge: dict | None = None, by: str | None = None) -> Setup:
+    """Operator adjustment: a new pose (or a nudge in table x/y/z mm and C deg) -> result revision n+1."""
+    from app.geometry.transforms import PoseError, check_pose, make_pose, pose_from_xyz_euler
+
+    s, objs = _located_objects(session, setup_id, object_index)
     old = np.asarray(objs[object_index]["T_table_obj"])
     if (T_table_obj is None) == (nudge is None):
         raise Invalid("give either T_table_obj or nudge")
@@ -320,11 +326,7 @@ def _redraw(session: Session, files: FileStore, s: Setup, result: dict) -> str:
 def choose_datum(session: Session, files: FileStore, settings, setup_id: int, *, object_index: int,
                  choice: int, by: str | None = None) -> Setup:
     """The operator says which of the equivalent poses is meant (0 = the pose as located) -> revision n+1."""
-    s = get_setup(session, setup_id)
-    _require_located(s)
-    objs = s.result.get("objects", [])
-    if not 0 <= object_index < len(objs):
-        raise Invalid(f"object_index {object_index} out of range: setup {setup_id} has {len(objs)} objects")
+    s, objs = _located_objects(session, setup_id, object_index)
     obj = objs[object_index]
     cands = datum_candidates(obj)
     if len(cands) < 2:
@@ -373,11 +375,7 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
     from app.vision import object_pose
     from app.vision.localize import _object_entry, marker_labels_table
 
-    s = get_setup(session, setup_id)
-    _require_located(s)
-    objs = s.result.get("objects", [])
-    if not 0 <= object_index < len(objs):
-        raise Invalid(f"object_index {object_index} out of range: setup {setup_id} has {len(objs)} objects")
+    s, objs = _located_objects(session, setup_id, object_index)
     obj = objs[object_index]
     if not obj.get("model_id"):
         raise Invalid(f"object {obj['name']} has no library model to refine against")

@@ -192,8 +192,7 @@ def refine(session: SessionDep, files: FilesDep, settings: SettingsDep, who: Ope
                                        by=who.label()))
 
 
-class DatumBody(BaseModel):
-    object_index: int = Field(ge=0, description="Index into result.objects")
+class DatumBody(RefineBody):
     choice: int = Field(ge=0, description="0 = the pose as located, k = result.objects[i].equivalent_poses[k-1]")
 
 
