@@ -13,9 +13,10 @@ ORDER = ["table_pose", "object_pose", "calibration", "mesh_pipeline", "sheet", "
 HEADER = """# Benchmarks
 
 Every figure below was produced by a script in `benchmarks/` that measures our method and a baseline
-in the same run (command, date and machine under each heading). All ran on the project machine:
-2 cores (`Intel(R) Xeon(R) Processor`), 24 GiB, shared with other jobs during the runs, so wall-clock
-times are pessimistic; the ratios against the baselines come from the same runs.
+in the same run (command, date and machine under each heading). All ran on project machines of one
+kind: 2 cores, 24 GiB, Debian 12 (the CPU model, Intel Xeon or AMD EPYC, is named per section), often
+shared with test runs, so wall-clock times are pessimistic; the ratios against the baselines come
+from the same runs.
 
 Regenerate this file after re-running a benchmark: `.venv/bin/python benchmarks/assemble.py`.
 

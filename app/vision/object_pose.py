@@ -1453,7 +1453,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
 
 
 def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, min_score: float = 0.6,
-              min_margin: float = 0.1, gamma: float = 2.2, n_full: int = 8, **locate_kw) -> Recognition:
+              min_margin: float = 0.1, gamma: float = 2.2, n_full: int = 4, **locate_kw) -> Recognition:
     """Which of ``candidates`` are in the image?
 
     Every candidate goes through the search and the planar fit (stages 1 and 2 of
