@@ -51,31 +51,32 @@ def check_kind_units(kind: str | None, units: str | None) -> None:
         raise Invalid(f"unknown units {units!r}; use one of: {', '.join(UNITS)}")
 
 
+def _from_json_text(value: Any, name: str) -> Any:
+    """JSON text parsed, anything else as given; 422 with the reason when the text is not JSON."""
+    if not isinstance(value, str):
+        return value
+    try:
+        return json.loads(value)
+    except json.JSONDecodeError as exc:
+        raise Invalid(f"{name}: not valid JSON ({exc.msg})") from None
+
+
 def parse_frame(value: Any, name: str) -> list[list[float]] | None:
     """A 4x4 pose from JSON text or nested lists (None stays None); 422 with the reason otherwise."""
     if value is None or value == "":
         return None
-    if isinstance(value, str):
-        try:
-            value = json.loads(value)
-        except json.JSONDecodeError as exc:
-            raise Invalid(f"{name}: not valid JSON ({exc.msg})") from None
     try:
-        return check_pose(value, name, tol=1e-5).tolist()
+        return check_pose(_from_json_text(value, name), name, tol=1e-5).tolist()
     except PoseError as exc:
         raise Invalid(str(exc)) from None
 
 
 def parse_fiducials(value: Any) -> dict | None:
+    """A fiducial layout (DESIGN format) from JSON text or a dict (None stays None); 422 with the reason."""
     if value is None or value == "":
         return None
-    if isinstance(value, str):
-        try:
-            value = json.loads(value)
-        except json.JSONDecodeError as exc:
-            raise Invalid(f"fiducials: not valid JSON ({exc.msg})") from None
     try:
-        return parse_layout(value).model_dump()
+        return parse_layout(_from_json_text(value, "fiducials")).model_dump()
     except ValueError as exc:
         raise Invalid(str(exc)) from None
 

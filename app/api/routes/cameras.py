@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from datetime import datetime
 from typing import Annotated, Any
 
@@ -11,8 +10,9 @@ from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
 from pydantic import BaseModel, Field
 
 from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
+from app.api.uploads import json_form, read_uploads
 from app.services import cameras as svc
-from app.services.errors import Invalid, TooLarge
+from app.services.errors import Invalid
 from app.vision.intrinsics import Intrinsics
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], dependencies=[Depends(get_principal)])
@@ -112,17 +112,8 @@ async def calibrate(
         "OpenCV's calibration sample exactly (its published figures), at the cost of corners pulled "
         "onto neighbours in oblique views."))] = None,
 ) -> CalibrationPublic:
-    try:
-        board_dict = json.loads(board)
-    except json.JSONDecodeError as exc:
-        raise Invalid(f"board: not valid JSON ({exc.msg})") from None
-    max_bytes = int(settings.max_upload_mb * 1e6)
-    loaded = []
-    for f in images:
-        data = await f.read(max_bytes + 1)
-        if len(data) > max_bytes:
-            raise TooLarge(f"image {f.filename!r} is over {settings.max_upload_mb:.0f} MB")
-        loaded.append((f.filename or f"image{len(loaded)}", data))
+    board_dict = json_form(board, "board")
+    loaded = await read_uploads(images, settings)
     row = svc.calibrate_camera(session, files, camera_id, images=loaded, board=board_dict,
                                fix_aspect_ratio=fix_aspect_ratio, subpix_half_window_px=subpix_window_px)
     if not row.ok:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from datetime import datetime
 from typing import Annotated
 
@@ -10,8 +9,9 @@ from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
+from app.api.uploads import json_form, read_uploads
 from app.services import rotary as svc
-from app.services.errors import Invalid, NotFound, TooLarge
+from app.services.errors import Invalid, NotFound
 
 router = APIRouter(prefix="/rotary", tags=["rotary"], dependencies=[Depends(get_principal)])
 
@@ -57,17 +57,8 @@ async def create_run(
     method: Annotated[str, Form(description="direct (ours) | reference")] = "direct",
     axis_name: Annotated[str, Form(max_length=10)] = "C",
 ) -> RotaryRunPublic:
-    max_bytes = int(settings.max_upload_mb * 1e6)
-    loaded = []
-    for f in images:
-        data = await f.read(max_bytes + 1)
-        if len(data) > max_bytes:
-            raise TooLarge(f"image {f.filename!r} is over {settings.max_upload_mb:.0f} MB")
-        loaded.append((f.filename or f"image{len(loaded)}", data))
-    try:
-        tgt = json.loads(target) if target else None
-    except json.JSONDecodeError as exc:
-        raise Invalid(f"target: not valid JSON ({exc.msg})") from None
+    loaded = await read_uploads(images, settings)
+    tgt = json_form(target, "target")
     dirs = [int(d) for d in _floats(directions, "directions")] if directions else None
     run = svc.run_rotary(session, files, camera_id=camera_id, images=loaded, angles_deg=_floats(angles_deg, "angles_deg"),
                          target=tgt, method=method, directions=dirs, axis_name=axis_name, by=who.label())

@@ -5,15 +5,16 @@ from __future__ import annotations
 import asyncio
 import json
 from datetime import datetime
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
 from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal
+from app.api.uploads import read_upload
 from app.services import setups as svc
-from app.services.errors import Invalid, NotFound, TooLarge
+from app.services.errors import Invalid, NotFound
 from app.store.db import session_scope
 
 router = APIRouter(prefix="/setups", tags=["setups"], dependencies=[Depends(get_principal)])
@@ -76,12 +77,7 @@ async def create_setup(
     grab: Annotated[bool, Form(description="Grab the image from the camera's source")] = False,
     image: Annotated[UploadFile | None, File(description="JPEG/PNG of table and workpiece")] = None,
 ) -> SetupAccepted:
-    data = None
-    if image is not None and image.filename:
-        max_bytes = int(settings.max_upload_mb * 1e6)
-        data = await image.read(max_bytes + 1)
-        if len(data) > max_bytes:
-            raise TooLarge(f"image is over {settings.max_upload_mb:.0f} MB")
+    data = await read_upload(image, settings, "image") if image is not None and image.filename else None
     setup = svc.create_setup(session, files, machine_id=machine_id, camera_id=camera_id,
                              model_ids=_parse_ids(model_ids), image=data, grab=grab, created_by=who.label())
     session.commit()

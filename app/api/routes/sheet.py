@@ -13,8 +13,9 @@ from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal, \
     require_admin
+from app.api.uploads import json_form, read_upload
 from app.services import sheet as svc
-from app.services.errors import Invalid, NotFound, TooLarge
+from app.services.errors import NotFound
 from app.store.db import session_scope
 from app.store.models import StoredFile
 
@@ -114,14 +115,6 @@ def _monitor(session, mon, recent: int = 100) -> MonitorPublic:
                          decisions=[svc.event_public(e) for e in svc.monitor_events(session, mon.id, limit=recent)])
 
 
-async def _read(upload: UploadFile, settings, what: str) -> bytes:
-    max_bytes = int(settings.max_upload_mb * 1e6)
-    data = await upload.read(max_bytes + 1)
-    if len(data) > max_bytes:
-        raise TooLarge(f"{what} is over {settings.max_upload_mb:.0f} MB")
-    return data
-
-
 def _stored(session, files, sha: str) -> Response:
     stored = session.get(StoredFile, sha)
     return Response(files.read(sha), media_type=stored.media_type if stored else "application/octet-stream",
@@ -155,15 +148,10 @@ async def create_alignment(
     grab: Annotated[bool, Form(description="grab the image from the camera's source")] = False,
     image: Annotated[UploadFile | None, File(description="JPEG/PNG of the bed")] = None,
 ) -> AlignmentPublic:
-    data = await _read(image, settings, "image") if image is not None and image.filename else None
-    pose = None
-    if T_cam_bed:
-        try:
-            pose = json.loads(T_cam_bed)
-        except json.JSONDecodeError as exc:
-            raise Invalid(f"T_cam_bed: not valid JSON ({exc.msg})") from None
-        if isinstance(pose, dict):
-            pose = pose.get("T_cam_bed")
+    data = await read_upload(image, settings, "image") if image is not None and image.filename else None
+    pose = json_form(T_cam_bed, "T_cam_bed")
+    if isinstance(pose, dict):
+        pose = pose.get("T_cam_bed")
     row = await asyncio.to_thread(
         svc.create_alignment, session, files, request.app.state.events, machine_id=machine_id, camera_id=camera_id,
         image=data, grab=grab, T_cam_bed=pose, thickness_mm=thickness_mm, margin_mm=margin_mm, by=who.label())
@@ -231,7 +219,7 @@ def get_monitor(request: Request, session: SessionDep, monitor_id: int, recent: 
              responses={409: {"description": "the monitor is stopped or finished"}})
 async def post_frame(request: Request, session: SessionDep, settings: SettingsDep, monitor_id: int, who: OperatorPrincipal,
                      frame: Annotated[UploadFile | None, File(description="JPEG/PNG frame")] = None) -> dict:
-    data = await _read(frame, settings, "frame") if frame is not None else None
+    data = await read_upload(frame, settings, "frame") if frame is not None else None
     reg = svc.registry(request.app.state, session)
     session.commit()  # the frame is processed in sessions of its own
     return await asyncio.to_thread(reg.process, monitor_id, data or None, actor=who.label())
