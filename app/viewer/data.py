@@ -55,21 +55,48 @@ def setup_version(engine, setup_id: int) -> tuple:
         return s.result_revision, s.confirmed_revision
 
 
-def probing_paths(session, files: FileStore, setup) -> tuple[tuple[ViewPath, ...], str]:
+class PlanCache:
+    """Probing plans drawn in the view, per (setup id, result revision): a revision is immutable, so a
+    plan is made once per viewer, whoever opens the view."""
+
+    def __init__(self, size: int = 32):
+        self._size = size
+        self._items: OrderedDict[tuple[int, int], tuple[tuple[ViewPath, ...], str]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key):
+        with self._lock:
+            return self._items.get(key)
+
+    def put(self, key, value) -> None:
+        with self._lock:
+            self._items[key] = value
+            while len(self._items) > self._size:
+                self._items.popitem(last=False)
+
+
+def probing_paths(session, files: FileStore, setup, plans: PlanCache | None = None) -> tuple[tuple[ViewPath, ...], str]:
     """The probing plan of a confirmed setup as paths to draw (safe travel, and each touch move from its
     approach point to the expected contact), or none and why."""
     from app.services import planning
 
     if setup.confirmed_revision is None or setup.confirmed_revision != setup.result_revision:
         return (), "the probing plan is drawn once the setup is confirmed"
+    key = (setup.id, setup.result_revision)
+    cached = plans.get(key) if plans is not None else None
+    if cached is not None:
+        return cached
     try:
         prog = planning.probing_plan(session, files, setup.id, dry_run=True)
+        paths = tuple([ViewPath(f"travel{i}", np.asarray(p.waypoints, float)) for i, p in enumerate(prog.travel)] +
+                      [ViewPath(f"touch_{t.name}", np.asarray([t.approach_tip, t.contact_tip], float), TOUCH_RGB)
+                       for t in prog.touches])
+        out = (paths, "")
     except ServiceError as exc:
-        return (), f"no probing plan: {exc.detail}"
-    paths = [ViewPath(f"travel{i}", np.asarray([w for w in p.waypoints], float)) for i, p in enumerate(prog.travel)]
-    paths += [ViewPath(f"touch_{t.name}", np.asarray([t.approach_tip, t.contact_tip], float), TOUCH_RGB)
-              for t in prog.touches]
-    return tuple(paths), ""
+        out = ((), f"no probing plan: {exc.detail}")
+    if plans is not None:
+        plans.put(key, out)
+    return out
 
 
 def _rgb(bgr) -> tuple[int, int, int]:
@@ -78,7 +105,8 @@ def _rgb(bgr) -> tuple[int, int, int]:
     return int(bgr[2]), int(bgr[1]), int(bgr[0])
 
 
-def load_setup_view(engine, files: FileStore, meshes: MeshCache, setup_id: int) -> SetupView | str:
+def load_setup_view(engine, files: FileStore, meshes: MeshCache, setup_id: int,
+                    plans: PlanCache | None = None) -> SetupView | str:
     """The 3D view of a setup, or a sentence saying why there is nothing to show yet."""
     try:
         with session_scope(engine) as session:
@@ -106,7 +134,7 @@ def load_setup_view(engine, files: FileStore, meshes: MeshCache, setup_id: int) 
                 camera = ViewCamera(T_cam_table=np.asarray(table["T_cam_table"], float),
                                     K=np.asarray(s.intrinsics["K"], float), width=int(s.intrinsics["width"]),
                                     height=int(s.intrinsics["height"]), image_rgb=img[:, :, ::-1].copy())
-            paths, why = probing_paths(session, files, s)
+            paths, why = probing_paths(session, files, s, plans)
             return SetupView(title=f"Setup {s.id}", revision=s.result_revision, table_mesh=table_mesh,
                              objects=tuple(objects), camera=camera, editable=editable, paths=paths,
                              notes=(why,) if why else (), version=(s.result_revision, s.confirmed_revision))

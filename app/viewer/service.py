@@ -9,7 +9,7 @@ import logging
 import numpy as np
 
 from app.store.db import session_scope
-from app.viewer.data import MeshCache, load_model_view, load_setup_view, setup_version
+from app.viewer.data import MeshCache, PlanCache, load_model_view, load_setup_view, setup_version
 from app.viewer.server import ViewerServer
 
 log = logging.getLogger(__name__)
@@ -19,10 +19,11 @@ def start_viewer(app) -> ViewerServer:
     """Start viser on ``settings.viser_port`` (127.0.0.1 only; browsers reach it through the relay)."""
     engine, files, settings = app.state.engine, app.state.files, app.state.settings
     meshes = MeshCache()
+    plans = PlanCache()
 
     def load(kind: str, ident: int):
         if kind == "setup":
-            return load_setup_view(engine, files, meshes, ident)
+            return load_setup_view(engine, files, meshes, ident, plans)
         return load_model_view(engine, files, meshes, ident)
 
     def on_move(setup_id: int, object_index: int, T_table_obj: np.ndarray, who: str) -> bool:
