@@ -22,3 +22,14 @@ def server(request, tmp_path_factory):
 def client(server):
     with server.client() as c:
         yield c
+
+
+@pytest.fixture(scope="module")
+def lcnc():
+    """The process's LinuxCNC sim (tests/machine/linuxcnc_sim.py); skips with the reason when absent."""
+    from tests.machine.linuxcnc_sim import shared_sim, skip_reason
+
+    why = skip_reason()
+    if why:
+        pytest.skip(why)
+    return shared_sim()

@@ -17,16 +17,6 @@ pytestmark = pytest.mark.integration
 
 
 @pytest.fixture(scope="module")
-def lcnc():
-    from tests.machine.linuxcnc_sim import shared_sim, skip_reason
-
-    why = skip_reason()
-    if why:
-        pytest.skip(why)
-    return shared_sim()
-
-
-@pytest.fixture(scope="module")
 def lcnc_machine(server, lcnc):
     with server.client() as c:
         return make_machine(c, lcnc.settings)

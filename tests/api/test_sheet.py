@@ -115,16 +115,6 @@ def test_failed_alignment_says_why_and_bed_pose_per_camera(server, camera, dry_m
 
 # ------------------------------------------------------------------------------------------------ LinuxCNC
 @pytest.fixture(scope="module")
-def lcnc():
-    from tests.machine.linuxcnc_sim import shared_sim, skip_reason
-
-    why = skip_reason()
-    if why:
-        pytest.skip(why)
-    return shared_sim()
-
-
-@pytest.fixture(scope="module")
 def lcnc_machine(server, lcnc):
     with server.client() as c:
         return make_machine(c, lcnc.settings, T_machine_table=T_MACHINE_BED, travel=TRAVEL)

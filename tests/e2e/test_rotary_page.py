@@ -2,28 +2,22 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import pytest
 
 from app.synth.rotary_images import RotaryScene, generate_run
 from app.vision.rotary_target import default_target
+from tests.support.browser import ARTIFACTS, signed_in_page, skip_without_chromium
 from tests.support.live_server import live_server
 
 pytestmark = pytest.mark.integration
 
-CHROMIUM = Path("/usr/bin/chromium")
-ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
 ANGLES = [0, 45, 90, 45, 0]
 
-if not CHROMIUM.exists():
-    pytest.skip("Debian package chromium is not installed (scripts/apt-packages.txt)", allow_module_level=True)
+skip_without_chromium()
 
 
 def test_rotary_page_measures_uploaded_pictures_and_shows_refusals(tmp_path):
-    from playwright.sync_api import sync_playwright
-
     scene = RotaryScene(noise_sigma=0.005)
     shots = generate_run(default_target(), ANGLES, scene=scene, seed=1)
     paths = []
@@ -33,14 +27,7 @@ def test_rotary_page_measures_uploaded_pictures_and_shows_refusals(tmp_path):
     with live_server(tmp_path / "data", "sqlite") as srv:
         with srv.client("admin") as c:
             cam = c.post("/api/v1/cameras", json={"name": "rotary cam", "intrinsics": scene.intrinsics_dict()}).json()
-        ARTIFACTS.mkdir(exist_ok=True)
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=["--disable-gpu"])
-            ctx = browser.new_context(viewport={"width": 1280, "height": 800})
-            ctx.add_cookies([{"name": "setupcam_session", "value": srv.tokens["operator"], "url": srv.url}])
-            page = ctx.new_page()
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
+        with signed_in_page(srv) as (page, errors):
             page.goto(srv.url + "/")
             page.get_by_role("link", name="Rotary axis check").click()
             page.wait_for_url("**/rotary")
@@ -74,4 +61,3 @@ def test_rotary_page_measures_uploaded_pictures_and_shows_refusals(tmp_path):
             box = plot.bounding_box()
             assert box and box["x"] + box["width"] <= 1280  # the plot fits the 1280 px screen
             assert errors == []
-            browser.close()

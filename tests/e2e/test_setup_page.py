@@ -20,21 +20,19 @@ import numpy as np
 import pytest
 import trimesh
 
+from tests.support.browser import ARTIFACTS, CHROMIUM, skip_without_chromium
 from tests.support.live_server import live_server
 
 pytestmark = pytest.mark.integration
 
-CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 REPO = Path(__file__).resolve().parents[2]
-ARTIFACTS = REPO / "test-artifacts"
 LIBRARY = REPO / "models_library"
 PART = "Bracket 140 x 90 x 35"
 W, H, F_PX = 1280, 800, 1100.0
 TRUTH_XY_C = (380.0, 190.0, 20.0)     # bracket centre on the table (mm) and its rotation (deg)
 
-if not CHROMIUM.exists():
-    pytest.skip("Debian package chromium is not installed (scripts/apt-packages.txt)", allow_module_level=True)
+skip_without_chromium()
 
 
 # ----------------------------------------------------------------------------------------- fixtures

@@ -3,24 +3,21 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import cv2
 import pytest
 
 from app.synth.bed_images import bed_camera, drift_sequence, render_bed_image, scene_variant
 from tests.support.factories import make_machine
+from tests.support.browser import ARTIFACTS, signed_in_page, skip_without_chromium
 from tests.support.live_server import live_server
 
 pytestmark = pytest.mark.integration
 
-CHROMIUM = Path("/usr/bin/chromium")
-ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
 CAM = bed_camera(800, 600, mm_per_px=1.0, target_bed_mm=(650.0, 420.0))
 SCENE = scene_variant("plain", sheet_angle_deg=2.0, thickness_mm=3.0, seed=0)
 
-if not CHROMIUM.exists():
-    pytest.skip("Debian package chromium is not installed (scripts/apt-packages.txt)", allow_module_level=True)
+skip_without_chromium()
 
 
 def _jpg(img) -> bytes:
@@ -28,8 +25,6 @@ def _jpg(img) -> bytes:
 
 
 def test_sheet_page_shows_live_decisions_chart_and_stops(tmp_path):
-    from playwright.sync_api import sync_playwright
-
     with live_server(tmp_path / "data", "sqlite") as srv:
         with srv.client("admin") as c:
             cam = c.post("/api/v1/cameras", json={"name": "bed cam", "intrinsics": CAM.intrinsics_dict()}).json()
@@ -43,14 +38,7 @@ def test_sheet_page_shows_live_decisions_chart_and_stops(tmp_path):
             c.post(f"/api/v1/sheet/alignments/{a['id']}/confirm")
             mid = c.post("/api/v1/sheet/monitors", json={"alignment_id": a["id"], "l1_mm": 1.0, "l2_mm": 4.0}).json()["id"]
             seq = drift_sequence(SCENE, CAM, [(0, 0, 0), (0.4, 0, 0), (1.5, 0.5, 0.1)])
-            ARTIFACTS.mkdir(exist_ok=True)
-            with sync_playwright() as p:
-                browser = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=["--disable-gpu"])
-                ctx = browser.new_context(viewport={"width": 1280, "height": 900})
-                ctx.add_cookies([{"name": "setupcam_session", "value": srv.tokens["operator"], "url": srv.url}])
-                page = ctx.new_page()
-                errors: list[str] = []
-                page.on("pageerror", lambda e: errors.append(str(e)))
+            with signed_in_page(srv, viewport=(1280, 900)) as (page, errors):
                 page.goto(f"{srv.url}/sheet?monitor={mid}")
                 page.get_by_test_id("thresholds").filter(has_text="L2 = 4.00 mm").wait_for()
                 for f in seq.frames:
@@ -68,5 +56,4 @@ def test_sheet_page_shows_live_decisions_chart_and_stops(tmp_path):
                 page.get_by_test_id("status-message").filter(has_text="has ended").wait_for(timeout=10_000)
                 assert page.get_by_test_id("stop-button").is_disabled()
                 assert errors == []
-                browser.close()
             assert c.get(f"/api/v1/sheet/monitors/{mid}").json()["state"] == "finished"
