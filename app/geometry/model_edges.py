@@ -58,12 +58,17 @@ class RestingState:
         Height of the part's top above the table in this state.
     same_as : int
         Index of an earlier state that is the same state up to a symmetry of the part, or -1.
+    cad_axis : str
+        ``"+z"`` / ``"-z"`` when the state stands the part with its CAD z axis up / down (how parts
+        are modelled for machining, and how a vise holds them), else ``""``. These stances are always
+        searched, however unlikely a random drop would end in them.
     """
 
     T_rest_obj: np.ndarray
     probability: float
     height_mm: float
     same_as: int = -1
+    cad_axis: str = ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -204,6 +209,8 @@ def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
     depth : (height, width) float32, camera z in mm of the nearest surface, +inf where empty
     face_id : (height, width) int64, ``mesh_index * 2**32 + face_index`` of that surface, -1 where empty
     """
+    if width <= 0 or height <= 0:
+        raise ValueError(f"z-buffer size must be positive, got {width} x {height}")
     depth = np.full(height * width, np.inf, dtype=np.float64)
     face_id = np.full(height * width, -1, dtype=np.int64)
     all_pix, all_z, all_id = [], [], []
@@ -471,7 +478,7 @@ def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = 
 def prepare_model(mesh: trimesh.Trimesh, name: str = "model", *, feature_angle_deg: float = 30.0,
                   smooth_angle_deg: float = 2.0, sample_step_mm: float | None = None,
                   max_resting_states: int = 6, min_resting_probability: float = 0.03,
-                  detect_symmetry: bool = True) -> PreparedModel:
+                  detect_symmetry: bool = True, upright_only: bool = False) -> PreparedModel:
     """Prepare a CAD model (obj frame, mm) for edge matching. Costs up to ~1 s; cache the result.
 
     Parameters
@@ -481,7 +488,10 @@ def prepare_model(mesh: trimesh.Trimesh, name: str = "model", *, feature_angle_d
     smooth_angle_deg : edges between faces closer to coplanar than this are never drawn (not even as
         silhouettes); above it and below ``feature_angle_deg`` they are silhouette-only (curved faces)
     sample_step_mm : spacing of the edge samples; default diameter / 300 within [0.25, 4] mm
-    max_resting_states, min_resting_probability : keep the likeliest stable poses (at least one)
+    max_resting_states, min_resting_probability : keep the likeliest stable poses (at least one);
+        the stances with the CAD z axis up and down are added when they are not among them
+    upright_only : the only stance is the CAD one (z up, lowest point on the plane): fixtures such as
+        a vise or parallels are modelled standing as they are used and never lie any other way
     """
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"model {name!r}: expected a non-empty triangle mesh")
@@ -501,6 +511,7 @@ def prepare_model(mesh: trimesh.Trimesh, name: str = "model", *, feature_angle_d
         cm = transform_points(T, center[None])[0]
         T = make_pose(None, [-cm[0], -cm[1], 0.0]) @ T   # centre of mass exactly above the origin
         states.append(RestingState(T_rest_obj=T, probability=rp.probability, height_mm=rp.height_mm))
+    states = _with_cad_stances(mesh, center, states, upright_only)
 
     syms: list[Symmetry] = []
     cont = None
@@ -521,13 +532,45 @@ def prepare_model(mesh: trimesh.Trimesh, name: str = "model", *, feature_angle_d
                     break
             if same >= 0:
                 break
-        marked.append(RestingState(s.T_rest_obj, s.probability, s.height_mm, same))
+        marked.append(RestingState(s.T_rest_obj, s.probability, s.height_mm, same, s.cad_axis))
     return PreparedModel(
         name=name, mesh=mesh, edge_vertices=ev, edge_faces=ef, edge_feature=feat,
         samples_obj=pts, sample_edge=rep, sample_dir_obj=d, sample_corner_mm=corner_mm,
         sample_step_mm=step,
         resting_states=tuple(marked), symmetries=tuple(syms), continuous_axis_obj=cont,
         center_obj=center, diameter_mm=diameter, feature_angle_deg=feature_angle_deg)
+
+
+def _with_cad_stances(mesh: trimesh.Trimesh, center: np.ndarray, states: list[RestingState],
+                      upright_only: bool) -> list[RestingState]:
+    """``states`` with the CAD z-up and z-down stances marked, added when missing (as states of
+    probability 0 behind the others). A stance needs a face down: a plane through the mesh's lowest
+    points that carries the centre of mass inside its support (checked loosely: any stance of a
+    CAD-modelled part along its z axis is taken; a vise holds the part however it would fall)."""
+    out: list[RestingState] = []
+    wanted = {"+z": np.eye(3), "-z": np.diag([1.0, -1.0, -1.0])}
+    if upright_only:
+        wanted.pop("-z")
+        states = []
+    for s in states:
+        tag = next((k for k, R in wanted.items() if np.allclose(s.T_rest_obj[:3, :3] @ R.T, _rz_of(s.T_rest_obj[:3, :3] @ R.T), atol=1e-6)), "")
+        out.append(RestingState(s.T_rest_obj, s.probability, s.height_mm, s.same_as, tag))
+    have = {s.cad_axis for s in out}
+    for tag, R in wanted.items():
+        if tag in have:
+            continue
+        V = np.asarray(mesh.vertices) @ R.T
+        cm = R @ center
+        T = make_pose(R, [-cm[0], -cm[1], -float(V[:, 2].min())])
+        out.append(RestingState(T_rest_obj=T, probability=0.0, height_mm=float(np.ptp(V[:, 2])), cad_axis=tag))
+    return out
+
+
+def _rz_of(R: np.ndarray) -> np.ndarray:
+    """The rotation about z closest to R (R itself when R turns about z only)."""
+    a = float(np.arctan2(R[1, 0] - R[0, 1], R[0, 0] + R[1, 1]))
+    c, s_ = np.cos(a), np.sin(a)
+    return np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def resting_pose(model: PreparedModel, state: int, x_mm: float, y_mm: float, theta_deg: float,
@@ -583,7 +626,7 @@ def visible_edge_samples(model: PreparedModel, T_cam_obj: np.ndarray, K: np.ndar
     tn = np.linalg.norm(t, axis=1)
     inside = (np.isfinite(uv).all(1) & (uv[:, 0] >= margin_px) & (uv[:, 1] >= margin_px)
               & (uv[:, 0] <= width - 1 - margin_px) & (uv[:, 1] <= height - 1 - margin_px)
-              & (tn > 1e-9))
+              & (tn > 1e-9) & _before_fold(P_cam, dist))
     idx, P_obj, P_cam, uv, t, tn = idx[inside], P_obj[inside], P_cam[inside], uv[inside], t[inside], tn[inside]
     n_front = len(idx)
     normal = np.stack([-t[:, 1], t[:, 0]], axis=1) / tn[:, None]
@@ -595,6 +638,30 @@ def visible_edge_samples(model: PreparedModel, T_cam_obj: np.ndarray, K: np.ndar
                        silhouette=sil, n_front=n_front)
 
 
+def _before_fold(P_cam: np.ndarray, dist) -> np.ndarray:
+    """(N,) bool: in front of the camera and inside the radius where the radial distortion still
+    grows with the angle (d r_d / d r > 0). Beyond it the polynomial folds back: a point far outside
+    the field of view would land inside the image, where nothing of it can be seen."""
+    z = P_cam[:, 2]
+    ok = z > 1e-6
+    d = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
+    if len(d) < 2 or not np.any(d):
+        return ok
+    k1, k2 = d[0], d[1]
+    k3 = d[4] if len(d) > 4 else 0.0
+    r2 = np.where(ok, (P_cam[:, 0] ** 2 + P_cam[:, 1] ** 2) / np.where(ok, z, 1.0) ** 2, np.inf)
+    with np.errstate(invalid="ignore", over="ignore"):
+        grow = 1 + 3 * k1 * r2 + 5 * k2 * r2 ** 2 + 7 * k3 * r2 ** 3
+        if len(d) >= 8:                     # rational model: (1 + k1 r2 + ...) / (1 + k4 r2 + ...)
+            k4, k5, k6 = d[5], d[6], d[7]
+            num = 1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
+            den = 1 + k4 * r2 + k5 * r2 ** 2 + k6 * r2 ** 3
+            dnum = k1 + 2 * k2 * r2 + 3 * k3 * r2 ** 2
+            dden = k4 + 2 * k5 * r2 + 3 * k6 * r2 ** 2
+            grow = num / den + 2 * r2 * (dnum * den - num * dden) / den ** 2
+    return ok & np.isfinite(grow) & (grow > 0)
+
+
 def _unoccluded(model, T_cam_obj, K, width, height, idx, P_cam, occluders, max_buffer_px):
     # pinhole pixel positions of the samples (the buffer has no distortion)
     u = K[0, 0] * P_cam[:, 0] / P_cam[:, 2] + K[0, 2]
@@ -602,6 +669,8 @@ def _unoccluded(model, T_cam_obj, K, width, height, idx, P_cam, occluders, max_b
     pad = 4.0
     x0, x1 = max(0.0, u.min() - pad), min(float(width - 1), u.max() + pad)
     y0, y1 = max(0.0, v.min() - pad), min(float(height - 1), v.max() + pad)
+    if x1 < x0 or y1 < y0:          # every sample lies outside the image: nothing there to hide them
+        return np.ones(len(P_cam), dtype=bool)
     s = min(1.0, max_buffer_px / max(x1 - x0, y1 - y0, 1.0))
     W = int(np.ceil((x1 - x0) * s)) + 2
     H = int(np.ceil((y1 - y0) * s)) + 2
