@@ -11,6 +11,7 @@ edges they cover (occluders), as in a real vise setup.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -23,6 +24,11 @@ from app.geometry.model_edges import PreparedModel, prepare_model
 from app.vision import object_pose
 from app.vision.fiducials import draw_table, locate_table
 
+FIXTURE_KINDS = ("clamp", "support")
+# Fixtures are often half hidden by the part they hold (jaws, parallels under it): they are accepted
+# at a lower share of supported edges than a workpiece, with the same margin and distinctiveness.
+FIXTURE_MIN_SCORE = 0.35
+
 # BGR colours per object, in order (workpiece first): distinct on grey metal.
 COLOURS = [(0, 220, 0), (255, 160, 0), (0, 200, 255), (255, 0, 255), (255, 255, 0), (80, 80, 255)]
 
@@ -33,7 +39,7 @@ class Candidate:
 
     name: str
     mesh: trimesh.Trimesh
-    kind: str = "workpiece"                  # workpiece | clamp | table
+    kind: str = "workpiece"                  # workpiece | clamp | support | table
     model_id: int | None = None
     revision: int | None = None
     T_obj_datum: np.ndarray | None = None
@@ -42,7 +48,9 @@ class Candidate:
     def prepare(self) -> PreparedModel:
         if self.prepared is None:
             # a table is never searched for, only masked out: its symmetry does not matter
-            self.prepared = prepare_model(self.mesh, self.name, detect_symmetry=self.kind != "table")
+            # fixtures are modelled standing as they are used (CAD z up) and never lie otherwise
+            self.prepared = prepare_model(self.mesh, self.name, detect_symmetry=self.kind != "table",
+                                          upright_only=self.kind in FIXTURE_KINDS)
         return self.prepared
 
 
@@ -111,7 +119,8 @@ def draw_overlay(image: np.ndarray, K, dist, table_result, located: list[tuple[C
 def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: dict,
              candidates: list[Candidate], *, recognise: bool = False,
              on_stage: Callable[[Stage], None] | None = None, min_score: float = 0.5,
-             min_margin: float = 0.1, height_offsets_mm=(0.0,), table_model: Candidate | None = None) -> LocalizeResult:
+             min_margin: float = 0.1, height_offsets_mm=(0.0,), table_model: Candidate | None = None,
+             chain: bool = False, free_height: bool = False) -> LocalizeResult:
     """Locate the table and the candidates in one image.
 
     Parameters
@@ -160,7 +169,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         t = time.perf_counter()
         prepared = [c.prepare() for c in ordered]
         rec = object_pose.recognise(image, K, dist, T_cam_table, prepared, min_score=max(min_score, 0.6),
-                                    min_margin=min_margin, height_offsets_mm=height_offsets_mm, known_models=known,
+                                    min_margin=min_margin, height_offsets_mm=height_offsets_mm, known_models=known, free_height=free_height,
                                     known_regions=labels)
         by_name = {c.name: c for c in ordered}
         for pose in rec.accepted:
@@ -170,28 +179,18 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                    draw_overlay(image, K, dist, table, located)))
         if not rec:
             not_found.append({"name": None, "reason": rec.reason, "ranked": list(rec.ranked)})
+    elif chain:
+        located, not_found = _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done,
+                                           min_score=min_score, min_margin=min_margin)
     else:
         for cand in ordered:
             t = time.perf_counter()
             occluders = [(c.prepare(), p.T_table_obj) for c, p in located if isinstance(p, object_pose.ObjectPose)]
             pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(), occluder_models=occluders,
                                              min_score=min_score, min_margin=min_margin,
-                                             height_offsets_mm=height_offsets_mm, known_models=known,
+                                             height_offsets_mm=height_offsets_mm, known_models=known, free_height=free_height,
                                              known_regions=labels)
-            ms = (time.perf_counter() - t) * 1e3
-            if pose:
-                located.append((cand, pose))
-                s = pose.sigma
-                msg = (f"{cand.name}: score {pose.score:.0%}, x {pose.T_table_obj[0, 3]:.2f} ± {s.get('x_mm', float('nan')):.2f} mm, "
-                       f"y {pose.T_table_obj[1, 3]:.2f} ± {s.get('y_mm', float('nan')):.2f} mm")
-                if pose.datum_ambiguous:
-                    msg += f"; {pose.datum_note}"
-            else:
-                not_found.append({"name": cand.name, "model_id": cand.model_id, "reason": pose.reason,
-                                  "kind": pose.kind})
-                msg = f"{cand.name}: {pose.reason}"
-            done(Stage(f"locate {cand.name}", bool(pose), ms, msg, pose.to_dict(),
-                       draw_overlay(image, K, dist, table, [(cand, pose)])))
+            _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table)
     for i, (cand, pose) in enumerate(located):
         objects.append(_object_entry(cand, pose, COLOURS[i % len(COLOURS)]))
     overlay = draw_overlay(image, K, dist, table, located)
@@ -210,6 +209,83 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
             reason = f"{len(objects)} of {len(objects) + len(not_found)} objects located; {names} not found"
     return LocalizeResult(ok, reason, tdict, objects, not_found, stages, overlay,
                           {"table": table_ms, "total": (time.perf_counter() - t_all) * 1e3})
+
+
+def _report(cand, pose, ms, located, not_found, done, image, K, dist, table, chain_text: str = "") -> None:
+    """Record one object's result (located or not) as a stage with its picture."""
+    if pose:
+        located.append((cand, pose))
+        s = pose.sigma
+        msg = (f"{cand.name}: score {pose.score:.0%}, x {pose.T_table_obj[0, 3]:.2f} ± {s.get('x_mm', float('nan')):.2f} mm, "
+               f"y {pose.T_table_obj[1, 3]:.2f} ± {s.get('y_mm', float('nan')):.2f} mm")
+        if chain_text:
+            msg += f"; {chain_text}"
+        if pose.datum_ambiguous:
+            msg += f"; {pose.datum_note}"
+    else:
+        not_found.append({"name": cand.name, "model_id": cand.model_id, "reason": pose.reason, "kind": pose.kind})
+        msg = f"{cand.name}: {pose.reason}"
+    done(Stage(f"locate {cand.name}", bool(pose), ms, msg, pose.to_dict(),
+               draw_overlay(image, K, dist, table, [(cand, pose)])))
+
+
+def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done, *, min_score, min_margin):
+    """The support chain: fixtures first (biggest first, each on the surfaces found so far, standing
+    as modelled), then every workpiece on all support surfaces and over risers of unknown height,
+    with the located fixtures' edges removed from the image and their bodies as occluders."""
+    from app.vision.support_chain import search_planes, support_surfaces, table_surface
+
+    located: list[tuple[Candidate, Any]] = []
+    not_found: list[dict] = []
+    surfaces = [table_surface()]
+    fixtures = sorted([c for c in ordered if c.kind in FIXTURE_KINDS], key=lambda c: -float(np.linalg.norm(c.mesh.extents)))
+    parts = [c for c in ordered if c.kind not in FIXTURE_KINDS]
+    for cand in fixtures + parts:
+        t = time.perf_counter()
+        model = cand.prepare()
+        fixture = cand.kind in FIXTURE_KINDS
+        occ = [(c.prepare(), p.T_table_obj) for c, p in located]
+        kn = tuple(known) + tuple((c.prepare(), p.T_table_obj) for c, p in located)
+        radius = 0.5 * model.diameter_mm
+        if fixture:     # a fixture stands directly on a surface found so far
+            planes = search_planes(surfaces, radius, table_risers=(0.0,), fixture_risers=(0.0,))
+        else:
+            planes = search_planes(surfaces, radius)
+        pose = object_pose.locate_object(image, K, dist, T_cam_table, model, occluder_models=occ,
+                                         min_score=FIXTURE_MIN_SCORE if fixture else min_score,
+                                         min_margin=min_margin, height_offsets_mm=tuple(planes),
+                                         free_height=not fixture, known_models=kn, known_regions=labels,
+                                         known_heights_mm=tuple(s.height_mm for s in surfaces))
+        chain_text = ""
+        if pose:
+            carrier = _carrier(surfaces, pose, cand)
+            pose = dataclasses.replace(pose, chain=carrier)
+            chain_text = "rests on " + " on ".join(carrier)
+            if fixture:
+                surfaces += support_surfaces(cand.mesh, pose.T_table_obj, cand.name)
+        _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table,
+                chain_text)
+    return located, not_found
+
+
+def _carrier(surfaces, pose, cand) -> tuple[str, ...]:
+    """What the located object rests on, down to the table: its names, nearest first. A gap of more
+    than 1 mm to the highest surface below is an unknown support (parallels or a block not in the
+    library) of that height."""
+    from app.vision.support_chain import placed_height_above
+    from app.geometry.transforms import transform_points
+
+    zmin = float(transform_points(pose.T_table_obj, np.asarray(cand.mesh.vertices))[:, 2].min())
+    s = placed_height_above(surfaces, pose.T_table_obj, cand.mesh, tol_mm=1.0)
+    if s is None:
+        return (f"an unknown support ({zmin:.1f} mm above the table)", "table")
+    names = []
+    if zmin - s.height_mm > 1.0:
+        names.append(f"an unknown support {zmin - s.height_mm:.1f} mm high")
+    names.append(s.carrier)
+    if s.carrier != "table":
+        names.append("table")
+    return tuple(names)
 
 
 def draw_model_edges(image: np.ndarray, K, dist, T_cam_obj: np.ndarray, model: PreparedModel, colour,
