@@ -113,6 +113,8 @@ class ObjectPose:
     datum_note: str
     flags: tuple
     timings_ms: dict
+    chain: tuple = ()          # what it rests on, nearest first, down to the table (set by the caller)
+    covariance: np.ndarray | None = None   # 6x6 of (origin x, y, z mm, rotation vector rad), table axes
 
     def __bool__(self) -> bool:
         return True
@@ -137,6 +139,8 @@ class ObjectPose:
             "tilt_deg": self.tilt_deg,
             "tilt_sigma_deg": None if not np.isfinite(self.tilt_sigma_deg) else self.tilt_sigma_deg,
             "height_offset_mm": self.height_offset_mm,
+            "chain": list(self.chain),
+            "cov6": None if self.covariance is None else np.where(np.isfinite(self.covariance), self.covariance, 0.0).tolist(),
             "margin": None if not np.isfinite(self.margin) else self.margin,
             "runner_up_score": None if not np.isfinite(self.runner_up_score) else self.runner_up_score,
             "distinctiveness": self.distinctiveness,
@@ -423,6 +427,14 @@ def _support_maps(rays, C, z: float, extent_xy, b: float, n_channels: int, tau_b
 # error components): 68 % of |error| / sigma fell within 1.28 -> 1.3. Command:
 # .venv/bin/python benchmarks/object_pose.py --scenes 0 --pairs 0 --calibrate-sigma 60
 SIGMA_SCALE = 1.3
+
+# Contact prior of the final fit (see locate_object): a part on a known surface sits on it within
+# CONTACT_SIGMA_MM and tilts within CONTACT_SIGMA_DEG (chips, burrs, a strap pressing one side; the
+# devset's first half shows lifts up to 1 mm and tilts up to 0.5 deg); above a riser of unknown height
+# the height is nearly free.
+CONTACT_SIGMA_MM = 0.5
+CONTACT_SIGMA_DEG = 0.3
+RISER_SIGMA_MM = 15.0
 
 
 def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, extent_xy,
@@ -766,13 +778,19 @@ FREE_REST = (0, 1, 2, 5)      # x, y, z, rotation about the table normal: part l
 
 def _refine(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_cam_table, K, dist,
             occluders_cam, subset, *, free=FREE_6DOF, radii=(5.0, 3.0, 2.0, 2.0), min_contrast: float,
-            round_axis_table: np.ndarray | None = None, f_scale_px: float = 0.5):
+            round_axis_table: np.ndarray | None = None, f_scale_px: float = 0.5,
+            prior: tuple[np.ndarray, float, float, np.ndarray] | None = None):
     """Iterated least-squares fit of the free pose parameters to subpixel image edges.
 
     Parameters p = (dx, dy, dz mm, rotation vector rad) move the part about its centre of mass in
     the table frame; ``free`` selects which are fitted (``FREE_REST`` keeps the part flat). Each
     round re-computes the visible edges (z-buffer with the occluders) and looks for the image edge
     along each edge normal within the round's radius. Returns (T_table_obj, info).
+
+    ``prior = (T_rest, sigma_z_mm, sigma_tilt_rad, c_obj)``: the part rests on a surface, so its height and
+    tilt are known beforehand to within the contact's sigmas (a chip under an edge, an unknown riser)
+    about ``T_rest``: they enter as Gaussian prior residuals (in units of :data:`PRIOR_PX` pixels of
+    edge noise) and as prior information in :func:`_covariance` (a maximum a-posteriori fit).
     """
     W, H = eimg.width, eimg.height
     free = np.asarray(free, dtype=np.int64)
@@ -805,10 +823,13 @@ def _refine(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_ca
 
         def fun(q, X=X, n=n, target=target, T0=T0, c_table=c_table, pin=pin):
             p = full(q)
-            uv = project_points_px(transform_points(T_cam_table @ _perturb(T0, c_table, p), X), K, dist)
+            T1 = _perturb(T0, c_table, p)
+            uv = project_points_px(transform_points(T_cam_table @ T1, X), K, dist)
             res = np.einsum("ij,ij->i", n, uv - target)
             if pin is not None:   # round part: pin the unobservable spin
                 res = np.append(res, 1e4 * float(p[3:6] @ pin))
+            if prior is not None:
+                res = np.append(res, PRIOR_PX * _prior_offsets(T1, prior, c_table))
             return res
 
         xs = np.array([1.0, 1.0, 1.0, 1e-3, 1e-3, 1e-3])[free]
@@ -816,7 +837,7 @@ def _refine(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_ca
                             x_scale=xs, max_nfev=60)
         T = _perturb(T0, c_table, full(sol.x))
         info = {"sol": sol, "X": X, "n": n, "target": target, "T0": T0, "c_table": c_table,
-                "n_visible": len(es.index), "n_used": int(good.sum()), "free": free, "pin": pin,
+                "n_visible": len(es.index), "n_used": int(good.sum()), "free": free, "pin": pin, "prior": prior,
                 "edge": model.sample_edge[es.index[good]]}
     return T, info
 
@@ -832,6 +853,20 @@ def _verify(eimg, model, T_table_obj, T_cam_table, K, dist, occluders_cam, subse
     off, contrast = _edges_along_normals(eimg.linear, es.uv_px, es.normal_uv, search_px)
     sup = np.isfinite(off) & (np.abs(np.nan_to_num(off, nan=99.0)) <= support_px) & (contrast >= min_contrast)
     return float(sup.mean()), es, sup
+
+
+# Edge noise (px) in whose units the contact prior's residuals are expressed: one prior residual
+# weighs as much as one edge sample of that noise (the sigma calibration absorbs the rest).
+PRIOR_PX = 0.5
+
+
+def _prior_offsets(T: np.ndarray, prior, c_table: np.ndarray | None = None) -> np.ndarray:
+    """(dz / sigma_z, tilt_x / sigma_t, tilt_y / sigma_t) of ``T`` against the prior's resting pose,
+    the height taken at the part's centre ``c_obj`` (obj frame)."""
+    T_rest, sz, st, c_obj = prior
+    dz = float(transform_points(T, c_obj[None])[0, 2] - transform_points(T_rest, c_obj[None])[0, 2])
+    rv = Rotation.from_matrix(T[:3, :3] @ T_rest[:3, :3].T).as_rotvec()
+    return np.array([dz / sz, rv[0] / st, rv[1] / st])
 
 
 def _covariance(info: dict, K, dist, T_cam_table) -> tuple[np.ndarray, np.ndarray, float]:
@@ -875,8 +910,13 @@ def _covariance(info: dict, K, dist, T_cam_table) -> tuple[np.ndarray, np.ndarra
     n_cl = len(np.unique(edges))
     G *= n_cl / max(n_cl - len(free), 1)          # small-sample correction
     cov_cl = Ainv @ G @ Ainv
+    cov_f = cov_cl + cov_iid
+    prior = info.get("prior")
+    if prior is not None:         # prior information on height and tilt (MAP): add it, invert back
+        P = np.diag([0.0, 0.0, 1.0 / prior[1] ** 2, 1.0 / prior[2] ** 2, 1.0 / prior[2] ** 2, 0.0])[np.ix_(free, free)]
+        cov_f = np.linalg.pinv(np.linalg.pinv(cov_f) + P)
     cov = np.zeros((6, 6))
-    cov[np.ix_(free, free)] = cov_cl + cov_iid
+    cov[np.ix_(free, free)] = cov_f
     return cov, inl, float(np.sqrt(np.mean(ri ** 2))) if m else float("nan")
 
 
@@ -939,9 +979,11 @@ def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, heig
     lo_xy = np.maximum(np.percentile(pts, 1, axis=0), C[:2] - 3000.0) - 150.0
     hi_xy = np.minimum(np.percentile(pts, 99, axis=0), C[:2] + 3000.0) + 150.0
     extent = (float(lo_xy[0]), float(hi_xy[0]), float(lo_xy[1]), float(hi_xy[1]))
+    if extent[1] <= extent[0] or extent[3] <= extent[2]:
+        return "the image's edges meet the table plane only more than 3 m from the camera"
     if resting_states is None:
         states = [i for i, s in enumerate(model.resting_states)
-                  if s.same_as < 0 and (i == 0 or s.probability >= min_state_probability)]
+                  if s.same_as < 0 and (i == 0 or s.probability >= min_state_probability or s.cad_axis)]
     else:
         states = list(resting_states)
     hyps: list[_Hyp] = []
@@ -949,9 +991,17 @@ def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, heig
     b_px = float(np.clip(model.diameter_mm / 18.0, 1.5, 16.0)) / max(px_mm, 1e-9)
     scorer_wide = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(1.2 * b_px, 3.0, 20.0)))
     scorer_mid = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(0.6 * b_px, 2.5, 10.0)))
+    planes = []
+    for h in height_offsets_mm:            # a height, or (height, table-plane extent to search there)
+        h, ext = (h if isinstance(h, tuple) else (h, None))
+        if ext is not None:
+            ext = (max(ext[0], extent[0]), min(ext[1], extent[1]), max(ext[2], extent[2]), min(ext[3], extent[3]))
+            if ext[1] <= ext[0] or ext[3] <= ext[2]:
+                continue
+        planes.append((float(h), ext or extent))
     for st in states:
-        for h in height_offsets_mm:
-            hyps += _plane_search(model, st, float(h), rays, C, extent, n_starts, px_mm=px_mm,
+        for h, ext in planes:
+            hyps += _plane_search(model, st, h, rays, C, ext, n_starts, px_mm=px_mm,
                                   image_score=scorer, cache=eimg.cache, image_score_wide=scorer_wide,
                                   image_score_mid=scorer_mid)
     timings["search"] = (time.perf_counter() - t) * 1e3
@@ -1108,7 +1158,8 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
                   max_tilt_deg: float = 0.5, max_sigma_mm: float = 0.2, max_sigma_deg: float = 0.1,
                   n_starts: int = 6, n_planar: int = 10, n_refine: int = 3, max_edges: int = 60000,
                   edge_image: EdgeImage | None = None, sigma_scale: float = SIGMA_SCALE, seed: int = 0,
-                  start_poses=None):
+                  start_poses=None, known_heights_mm=None, contact_sigma_mm: float = CONTACT_SIGMA_MM,
+                  contact_sigma_deg: float = CONTACT_SIGMA_DEG, riser_sigma_mm: float = RISER_SIGMA_MM):
     """Locate one part on the table. Returns :class:`ObjectPose` or :class:`ObjectFailure`.
 
     ``start_poses``: optional ``T_table_obj`` starts (e.g. an operator's adjusted pose, "refine from
@@ -1147,9 +1198,17 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     sigma_scale : factor on the least-squares sigma (edge samples along one edge are not independent);
         default :data:`SIGMA_SCALE`
 
-    The pose is fitted lying flat (x, y, rotation about the table normal; height with ``free_height``),
-    then once more in free 6 DoF: its tilt is reported (flag "tilt" when it exceeds ``max_tilt_deg``
-    and 3 sigma; the free pose is in ``T_table_obj_6dof``).
+    known_heights_mm : heights (table z) of surfaces known to carry parts (the table, located
+        fixtures' faces); a start searched at another height (a riser of unknown height) has its
+        height fitted (``free_height``) and only a broad prior on it. None: every searched height.
+    contact_sigma_mm, contact_sigma_deg : how far a part resting on a known surface may sit above
+        it or tilt (a chip, a burr, a strap pressing one side): the prior of the final fit;
+        ``riser_sigma_mm`` the prior on the height above an unknown riser.
+
+    The pose is fitted lying flat (x, y, rotation about the table normal; height with ``free_height``
+    on unknown risers), then once more in 6 DoF with the contact prior (maximum a-posteriori): that
+    is the pose returned, with its posterior sigma for all six axes. Its tilt is reported (flag
+    "tilt" when it exceeds ``max_tilt_deg`` and 3 sigma; ``T_table_obj_6dof`` is the same pose).
     """
     t_all = time.perf_counter()
     timings: dict[str, float] = {}
@@ -1212,9 +1271,15 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     sub_fine = _sample_subset(model, px_per_mm, 2.5, 1500)
     min_contrast = max(0.01, 6.0 * eimg.noise_linear)
 
+    def on_known_surface(T) -> bool:
+        if known_heights_mm is None:
+            return True
+        z0 = float(transform_points(T, model.mesh.vertices)[:, 2].min())
+        return any(abs(z0 - h) < 0.5 for h in known_heights_mm)
+
     def refine_rest(T0, state, radii=(5.0, 3.0, 2.0, 2.0)):
         rs_axis = inv(model.resting_states[state].T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0])
-        free = (0, 1, 2, 5) if free_height else (0, 1, 5)
+        free = (0, 1, 2, 5) if free_height and not on_known_surface(T0) else (0, 1, 5)
         if model.continuous_axis_obj is not None and abs(float(rs_axis @ model.continuous_axis_obj)) > 0.999:
             free = free[:-1]          # round part standing on its face: its spin is not observable
         T, info = _refine(eimg, model, T0, T_cam_table, K, dist, occluders_cam, sub_fine, free=free,
@@ -1343,8 +1408,12 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     # residual tilt: free 6-DoF fit from the flat result
     st = best["state"]
     ra = None if model.continuous_axis_obj is None else best["T"][:3, :3] @ model.continuous_axis_obj
+    known_surface = on_known_surface(best["T"])
+    prior = (best["T"], contact_sigma_mm if known_surface else riser_sigma_mm, np.radians(contact_sigma_deg),
+             model.center_obj)
     T6, info6 = _refine(eimg, model, best["T"], T_cam_table, K, dist, occluders_cam, sub_fine,
-                        free=FREE_6DOF, radii=(2.0, 2.0), min_contrast=min_contrast, round_axis_table=ra)
+                        free=FREE_6DOF, radii=(2.0, 2.0), min_contrast=min_contrast, round_axis_table=ra,
+                        prior=prior)
     n_rest = inv(model.resting_states[st].T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0])
     up = T6[:3, :3] @ n_rest
     tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
@@ -1354,8 +1423,19 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
         cov6, _, _ = _covariance(info6, K, dist, T_cam_table)
         tilt_sigma = float(np.degrees(np.sqrt(max(cov6[3, 3] + cov6[4, 4], 0.0)))) * sigma_scale
     if "sol" in info6 and tilt > max_tilt_deg and tilt > 3.0 * tilt_sigma:
-        flags.append("tilt")          # the free fit says: not lying flat (pose stays the flat fit)
+        flags.append("tilt")          # the free fit says: not lying flat
+    # The flat pose stands unless the 6-DoF fit (with the contact prior) says clearly otherwise: a
+    # tilt or a lift beyond 3 sigma (a chip under an edge). Monocular height is weak: where the image
+    # cannot tell, the contact is the better guess. Either way the covariance is the 6-DoF posterior,
+    # so the stated sigma covers all six axes, height and tilt included.
     T_table_obj, info = best["T"], best["info"]
+    if "sol" in info6:
+        c_obj = model.center_obj[None]
+        lift = float(transform_points(T6, c_obj)[0, 2] - transform_points(best["T"], c_obj)[0, 2])
+        lift_sigma = float(np.sqrt(max(cov6[2, 2], 0.0))) * sigma_scale
+        if tilt > 3.0 * tilt_sigma or abs(lift) > 3.0 * lift_sigma:
+            T_table_obj = T6
+        info = info6
     # of the poses that look exactly the same, give the most upright one (the part's CAD z up, as a
     # 3-axis work offset needs it); which of them is meant stays the operator's choice
     S_up = max([np.eye(4)] + [s.S for s in model.symmetries if s.exact],
@@ -1369,10 +1449,13 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     A = np.eye(6)
     A[:3, 3:] = -np.array([[0, -lever[2], lever[1]], [lever[2], 0, -lever[0]], [-lever[1], lever[0], 0]])
     cov_o = A @ cov @ A.T
-    sd = np.sqrt(np.maximum(np.diag(cov_o), 0)) * sigma_scale
+    cov_o = cov_o * sigma_scale ** 2
+    sd = np.sqrt(np.maximum(np.diag(cov_o), 0))
     sigma = {"x_mm": float(sd[0]), "y_mm": float(sd[1]), "z_mm": float(sd[2]),
              "rx_deg": float(np.degrees(sd[3])), "ry_deg": float(np.degrees(sd[4])),
              "rz_deg": float(np.degrees(sd[5]))}
+    if "sol" not in info6:         # no 6-DoF fit: height and tilt are not measured, only assumed
+        sigma.update(z_mm=float("nan"), rx_deg=float("nan"), ry_deg=float("nan"))
     if model.continuous_axis_obj is not None:
         ax = np.abs(T_table_obj[:3, :3] @ model.continuous_axis_obj)
         for k, key in enumerate(("rx_deg", "ry_deg", "rz_deg")):
@@ -1421,9 +1504,14 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
                  f"{best['score']:.0%}): the face up is decided")
     if ambiguous_datum:
         flags.append("datum_ambiguous")
-    worst_mm = max(sigma["x_mm"], sigma["y_mm"], sigma["z_mm"])
-    worst_deg = max((v for k, v in sigma.items() if k.endswith("_deg") and np.isfinite(v)), default=0.0)
-    uncertainty_ok = bool(worst_mm <= max_sigma_mm and worst_deg <= max_sigma_deg)
+    # an axis whose sigma is unknown fails (NaN compares false); only the spin of a round part about
+    # its own axis is exempt: it is a datum question, not an uncertainty
+    spin_free = set()
+    if model.continuous_axis_obj is not None:
+        ax = np.abs(T_table_obj[:3, :3] @ model.continuous_axis_obj)
+        spin_free = {key for k, key in enumerate(("rx_deg", "ry_deg", "rz_deg")) if ax[k] > 0.9}
+    uncertainty_ok = bool(all(sigma[k] <= max_sigma_mm for k in ("x_mm", "y_mm", "z_mm")) and
+                          all(sigma[k] <= max_sigma_deg for k in ("rx_deg", "ry_deg", "rz_deg") if k not in spin_free))
     if not uncertainty_ok:
         flags.append("uncertainty")
     n_vis = len(best["es"].index)
@@ -1447,7 +1535,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
         tilt_sigma_deg=tilt_sigma, T_table_obj_6dof=T6, unexplained_fraction=unexplained,
         supported_edge_px=supported_px,
         uncertainty_ok=uncertainty_ok, height_offset_mm=height, margin=float(margin), runner_up_score=float(runner),
-        distinctiveness=distinct_drop,
+        distinctiveness=distinct_drop, covariance=cov_o,
         equivalent_poses=equivalent, datum_ambiguous=ambiguous_datum, datum_note=note, flags=tuple(flags),
         timings_ms=dict(timings))
 

@@ -75,7 +75,11 @@ def test_locates_the_clamped_bracket(models, clamped):
     assert all(np.isfinite(v) and v >= 0 for v in res.sigma.values())
     assert res.score >= 0.35 and res.distinctiveness >= 0.1
     assert res.datum_ambiguous is False and res.equivalent_poses == ()
-    assert res.uncertainty_ok is True and "uncertainty" not in res.flags
+    # one image does not fix the height exactly: the 6-DoF posterior (contact prior + fit) says so
+    assert res.sigma["z_mm"] > 0.05 and res.sigma["rx_deg"] > 0 and res.sigma["ry_deg"] > 0
+    assert res.uncertainty_ok == (all(res.sigma[k] <= 0.2 for k in ("x_mm", "y_mm", "z_mm")) and
+                                  all(res.sigma[k] <= 0.1 for k in ("rx_deg", "ry_deg", "rz_deg")))
+    assert ("uncertainty" in res.flags) == (not res.uncertainty_ok)
     d = json.loads(json.dumps(res.to_dict()))
     assert d["ok"] is True and np.asarray(d["T_table_obj"]).shape == (4, 4)
     assert set(res.timings_ms) >= {"edges", "search", "planar_fit", "refine", "verify", "total"}
