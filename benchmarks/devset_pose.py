@@ -1,0 +1,197 @@
+"""Benchmark: object pose on the independent devset (../shared/data/devset), per fixture mode.
+
+    .venv/bin/python benchmarks/devset_pose.py [--methods baseline,engine] [--scenes setup_000,...]
+                                               [--jobs 2] [--out var/devset] [--report-only]
+
+The devset's scenes come from a renderer that is not ours (other lighting and noise, mono and JPEG
+cameras, parts in a vise on parallels, on parallels, on the table under strap clamps). Each scene is
+run end to end as the service runs it: table from the markers (``locate_table``), then the workpiece
+with the library's fixtures (the devset's vise and parallels, read from its ``meshes/``) by
+:func:`app.vision.localize.localize`. Nothing is tuned per scene: constants are fitted on
+``setup_000``-``setup_019`` only and both halves are reported apart.
+
+Methods, run in the same process on the same images:
+* ``baseline``: the engine as it was before the support chain: the workpiece searched on the table
+  plane only (``height_offsets_mm=(0,)``), no fixtures located;
+* ``engine``: the current engine: fixtures located first, the workpiece searched on their support
+  surfaces and over free height.
+
+Reported per method, mode and half: scenes, eligible (>= 2 markers seen and >= 50 % of the part
+visible), located, wrong but accepted (> 1 mm or > 0.5 deg), position error median / p95 (mm, 3D, to
+the nearest equivalent pose), rotation error median (deg), share of error components within 1 and 3
+stated sigma (x, y, z, rx, ry, rz), NEES (mean of the 6-DoF chi-square, expected 6) and time per image.
+Per-scene rows are written to ``OUT/<method>.json`` (the report is made from them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+# SETUPCAM_CODE: run another checkout's engine (the baseline: the commit before the support chain,
+# e.g. `git worktree add /tmp/base <commit>`; copy app/synth/devset.py and app/vision/pose_errors.py in)
+sys.path.insert(0, os.environ.get("SETUPCAM_CODE", str(Path(__file__).resolve().parent.parent)))
+
+DEVSET = Path(os.environ.get("SETUPCAM_DEVSET", Path(__file__).resolve().parents[2] / "shared" / "data" / "devset"))
+WRONG_MM, WRONG_DEG = 1.0, 0.5
+
+
+def scenes(family: str = "setup") -> list[dict]:
+    man = json.loads((DEVSET / "manifest.json").read_text())
+    return man["families"][family]
+
+
+def run_scene(entry: dict, method: str) -> dict:
+    """One scene through one method -> a row (errors, sigma, time, reason)."""
+    import cv2
+    import trimesh
+
+    from app.synth.devset import devset_scene
+    from app.vision.localize import Candidate, localize
+    from app.vision.pose_errors import pose_error_6dof
+
+    sc = devset_scene(DEVSET, entry)
+    image = cv2.imread(str(DEVSET / entry["image"]), cv2.IMREAD_UNCHANGED)
+    wp = sc.workpiece
+    cands = [Candidate(wp["name"], trimesh.load(DEVSET / wp["mesh"], force="mesh"), kind="workpiece")]
+    if method == "engine":
+        cands += sc.fixture_candidates
+    kw = {"height_offsets_mm": (0.0,)} if method == "baseline" else {"chain": True}
+    t = time.perf_counter()
+    try:
+        res = localize(image, sc.K, sc.dist, sc.layout, cands, table_model=sc.table_candidate, **kw)
+        err = None
+    except Exception as e:  # noqa: BLE001 - a crash is a result here, reported as such
+        res, err = None, f"{type(e).__name__}: {e}"
+    ms = (time.perf_counter() - t) * 1e3
+    row = {"scene": entry["scene_id"], "mode": entry["fixture_mode"], "workpiece": entry["workpiece"],
+           "half": 0 if entry["index"] < 20 else 1, "ms": ms, "markers_seen": len(sc.gt["visible_marker_ids"]),
+           "visible_fraction": float(wp["visible_fraction"]), "crash": err}
+    obj = None if res is None else next((o for o in res.objects if o["kind"] == "workpiece"), None)
+    row["located"] = obj is not None
+    wp_fail = [] if res is None else [n["reason"] for n in res.not_found if n.get("name") == wp["name"]]
+    row["reason"] = "" if obj is not None else (err or (wp_fail[0] if wp_fail else res.reason))
+    row["fixtures"] = [] if res is None else [o["name"] for o in res.objects if o["kind"] != "workpiece"]
+    if obj is not None:
+        prepared = next(c for c in cands if c.kind == "workpiece").prepare()
+        listed = [np.asarray(obj["T_table_obj"])] + [np.asarray(T) for T in obj.get("equivalent_poses", [])]
+        errs = [pose_error_6dof(T, np.asarray(wp["T_table_object"]), prepared) for T in listed]
+        e = min(errs, key=lambda e: np.linalg.norm(e[:3]) + 10 * np.linalg.norm(np.nan_to_num(e[3:])))
+        row.update(err=[float(v) for v in e], sigma=obj["sigma"], score=obj["score"], chain=obj.get("chain"),
+                   cov6=obj.get("cov6"), pass_=obj.get("uncertainty_ok"))
+    return row
+
+
+def _summary(rows: list[dict]) -> dict:
+    n = len(rows)
+    elig = [r for r in rows if r["markers_seen"] >= 2 and r["visible_fraction"] >= 0.5]
+    loc = [r for r in rows if r["located"]]
+    wrong = [r for r in loc if np.linalg.norm(r["err"][:3]) > WRONG_MM or
+             np.nanmax(np.abs(r["err"][3:])) > WRONG_DEG]
+    wrong_pass = [r for r in wrong if r.get("pass_")]        # wrong and the gate would have let it through
+    good = [r for r in loc if r not in wrong]
+    pos = np.array([np.linalg.norm(r["err"][:3]) for r in good])
+    rot = np.array([np.nanmax(np.abs(r["err"][3:])) if np.any(np.isfinite(r["err"][3:])) else 0.0 for r in good])
+    keys = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
+    ratios = []
+    for r in loc:
+        for k, e in zip(keys, r["err"]):
+            s = r["sigma"].get(k)
+            if s is not None and np.isfinite(s) and s > 0 and np.isfinite(e):  # None: undetermined
+                ratios.append(abs(e) / s)
+            elif np.isfinite(e):
+                ratios.append(np.inf)           # an error with no stated sigma is never covered
+    ratios = np.array(ratios)
+    nees = []
+    for r in loc:
+        if r.get("cov6"):
+            C = np.asarray(r["cov6"], float)
+            e = np.asarray(r["err"], float)
+            ok = np.isfinite(e) & np.isfinite(np.diag(C))
+            if ok.sum() >= 3:
+                e = e[ok] * np.where(np.arange(6)[ok] >= 3, np.pi / 180, 1.0)
+                nees.append(float(e @ np.linalg.pinv(C[np.ix_(ok, ok)]) @ e) / ok.sum())
+    return {"scenes": n, "eligible": len(elig), "located": len(loc),
+            "located_eligible": sum(r["located"] for r in elig), "wrong": len(wrong), "wrong_pass": len(wrong_pass),
+            "crashes": sum(1 for r in rows if r["crash"]),
+            "pos_med": float(np.median(pos)) if len(pos) else None,
+            "pos_p95": float(np.percentile(pos, 95)) if len(pos) else None,
+            "rot_med": float(np.median(rot)) if len(rot) else None,
+            "cov1": float(np.mean(ratios <= 1)) if len(ratios) else None,
+            "cov3": float(np.mean(ratios <= 3)) if len(ratios) else None,
+            "nees": float(np.mean(nees)) if nees else None,
+            "ms_med": float(np.median([r["ms"] for r in rows])) if rows else None}
+
+
+def _fmt(v, f="{:.3f}"):
+    return "-" if v is None else f.format(v)
+
+
+def report(results: dict[str, list[dict]]) -> str:
+    lines = ["| method | mode | half | scenes | eligible | located (eligible) | wrong located / passed the gate | crashes | "
+             "pos median / p95 mm | rot median deg | within 1 / 3 sigma | NEES/dof | time median s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for method, rows in results.items():
+        for mode in ("table", "vise", "parallels", "all"):
+            for half in (0, 1, None):
+                sel = [r for r in rows if (mode == "all" or r["mode"] == mode) and (half is None or r["half"] == half)]
+                if not sel:
+                    continue
+                s = _summary(sel)
+                hl = {0: "000-019", 1: "020-039", None: "both"}[half]
+                lines.append(
+                    f"| {method} | {mode} | {hl} | {s['scenes']} | {s['eligible']} | {s['located']} "
+                    f"({s['located_eligible']}) | {s['wrong']} / {s['wrong_pass']} | {s['crashes']} | {_fmt(s['pos_med'])} / "
+                    f"{_fmt(s['pos_p95'])} | {_fmt(s['rot_med'])} | {_fmt(s['cov1'], '{:.0%}')} / "
+                    f"{_fmt(s['cov3'], '{:.0%}')} | {_fmt(s['nees'], '{:.2f}')} | {_fmt(s['ms_med'] / 1e3 if s['ms_med'] else None, '{:.1f}')} |")
+    return "\n".join(lines)
+
+
+def _job(args):
+    entry, method = args
+    return method, run_scene(entry, method)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--methods", default="baseline,engine")
+    ap.add_argument("--scenes", default="", help="comma-separated scene ids (default: all 40 setups)")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--out", default="var/devset")
+    ap.add_argument("--report-only", action="store_true")
+    a = ap.parse_args(argv)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    methods = a.methods.split(",")
+    todo = [e for e in scenes() if not a.scenes or e["scene_id"] in a.scenes.split(",")]
+    results: dict[str, list[dict]] = {}
+    if not a.report_only:
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        jobs = [(e, m) for m in methods for e in todo]
+        done: dict[str, list[dict]] = {m: [] for m in methods}
+        with ProcessPoolExecutor(a.jobs) as ex:
+            for method, row in ex.map(_job, jobs):
+                done[method].append(row)
+                print(f"{method:9s} {row['scene']} {row['mode']:9s} located={row['located']} "
+                      f"err={np.round(row.get('err', []), 3).tolist()} {row['ms'] / 1e3:.1f}s {row['reason'][:160]}",
+                      flush=True)
+        for m, rows in done.items():
+            old = {r["scene"]: r for r in (json.loads((out / f"{m}.json").read_text()) if (out / f"{m}.json").exists() else [])}
+            old.update({r["scene"]: r for r in rows})
+            (out / f"{m}.json").write_text(json.dumps(sorted(old.values(), key=lambda r: r["scene"]), indent=1))
+    for m in methods:
+        if (out / f"{m}.json").exists():
+            results[m] = json.loads((out / f"{m}.json").read_text())
+    print(report(results))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
