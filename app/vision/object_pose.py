@@ -556,17 +556,20 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     f_D = D[f_sel]
     hx, hy, ht = cx, cy, cth
     # each step's scorer reaches about as far as the step is coarse (a 2 px scorer cannot see a part
-    # half a coarse cell away)
+    # half a coarse cell away); every coarse cell keeps its best refinement, so a big part whose
+    # neighbourhood is full of good-looking cells does not crowd the other cells out
     for (step_xy, step_th), image_score in zip(((b / 2, dth / 2), (b / 4, dth / 4)),
                                                (image_score_wide or image_score, image_score_mid or image_score)):
         g = np.array([-step_xy, 0.0, step_xy])
         gt = np.array([0.0]) if round_part else np.array([-step_th, 0.0, step_th])
         DX, DY, DT = np.meshgrid(g, g, gt, indexing="ij")
+        nb = DX.size
         hx = (hx[:, None] + DX.ravel()[None, :]).ravel()
         hy = (hy[:, None] + DY.ravel()[None, :]).ravel()
         ht = (ht[:, None] + DT.ravel()[None, :]).ravel()
         fscore = image_score(hx, hy, ht, f_P, f_D, f_w)
-        order = np.argsort(-fscore)[: 3 * n_peaks + 10]
+        best_of_cell = np.arange(len(hx) // nb) * nb + np.argmax(fscore.reshape(-1, nb), axis=1)
+        order = best_of_cell[np.argsort(-fscore[best_of_cell])]
         hx, hy, ht, fscore = hx[order], hy[order], ht[order], fscore[order]
     keep = _nms(hx, hy, ht, max(0.2 * diam, 2.5 * b), np.radians(15.0), n_peaks)
     out: list[_Hyp] = []
