@@ -22,6 +22,12 @@ from app.vision.localize import Candidate
 # jaw, and the moving jaw) and its parallels. Parallels under a part standing on the table are not
 # listed: the engine searches free height for supports it does not know.
 FIXTURES = (("vise_body", "clamp"), ("vise_jaw", "clamp"))
+# What the admin declares for the devset's vise (read off its mesh once, as for any library vise):
+# the seat between the jaws at z 70, where parts stand on parallels. The moving jaw carries nothing.
+SUPPORT_SURFACES = {
+    "vise_body": [{"name": "seat", "z_mm": 70.0, "outline_xy": [[-150, -60], [100, -60], [100, 60], [-150, 60]]}],
+    "vise_jaw": [],
+}
 
 
 @lru_cache(maxsize=64)
@@ -50,6 +56,7 @@ def devset_scene(root: Path, entry: dict, fixtures=FIXTURES) -> DevsetScene:
     wp = next(o for o in gt["objects"] if o["kind"] == "workpiece")
     wp = dict(wp, name=entry.get("workpiece", wp.get("subtype", "workpiece")))
     table = Candidate("table", _mesh(str(root / "meshes" / "table_800x400_tslot.stl")), kind="table")
-    fx = [Candidate(name, _mesh(str(root / "meshes" / f"{name}.stl")), kind=kind) for name, kind in fixtures]
+    fx = [Candidate(name, _mesh(str(root / "meshes" / f"{name}.stl")), kind=kind,
+                    support_surfaces=SUPPORT_SURFACES.get(name)) for name, kind in fixtures]
     return DevsetScene(gt=gt, K=np.asarray(cam["K"], float), dist=np.asarray(cam["dist"], float).ravel(),
                        layout=layout, workpiece=wp, table_candidate=table, fixture_candidates=fx)

@@ -44,6 +44,9 @@ class Candidate:
     revision: int | None = None
     T_obj_datum: np.ndarray | None = None
     prepared: PreparedModel | None = None    # filled lazily (prepare_model costs ~1 s; callers cache)
+    # fixtures: the plane patches a part can rest on, in the model frame ({"name", "z_mm",
+    # "outline_xy"}); None: derived from the mesh's upward faces
+    support_surfaces: list[dict] | None = None
 
     def prepare(self) -> PreparedModel:
         if self.prepared is None:
@@ -233,7 +236,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
     """The support chain: fixtures first (biggest first, each on the surfaces found so far, standing
     as modelled), then every workpiece on all support surfaces and over risers of unknown height,
     with the located fixtures' edges removed from the image and their bodies as occluders."""
-    from app.vision.support_chain import search_planes, support_surfaces, table_surface
+    from app.vision.support_chain import declared_surfaces, search_planes, support_surfaces, table_surface
 
     located: list[tuple[Candidate, Any]] = []
     not_found: list[dict] = []
@@ -262,7 +265,8 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
             pose = dataclasses.replace(pose, chain=carrier)
             chain_text = "rests on " + " on ".join(carrier)
             if fixture:
-                surfaces += support_surfaces(cand.mesh, pose.T_table_obj, cand.name)
+                surfaces += (support_surfaces(cand.mesh, pose.T_table_obj, cand.name) if cand.support_surfaces is None
+                             else declared_surfaces(cand.support_surfaces, pose.T_table_obj, cand.name))
         _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table,
                 chain_text)
     return located, not_found

@@ -435,6 +435,10 @@ SIGMA_SCALE = 1.3
 CONTACT_SIGMA_MM = 0.5
 CONTACT_SIGMA_DEG = 0.3
 RISER_SIGMA_MM = 15.0
+# A freely fitted height within this of a known surface is taken as resting on it.
+SNAP_MM = 3.0
+# A 6-DoF fit further than this many prior sigmas from its resting contact is not believed.
+MAX_PRIOR_SIGMAS = 4.0
 
 
 def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, extent_xy,
@@ -815,6 +819,10 @@ def _refine(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_ca
         target = es.uv_px[good] + off[good, None] * n
         c_table = transform_points(T, model.center_obj[None])[0]
         T0 = T
+        # the samples along one model edge share its errors: the data carry about as much information
+        # as that many edges, not samples; the prior is weighed against them accordingly
+        n_cl = len(np.unique(model.sample_edge[es.index[good]]))
+        w_prior = PRIOR_PX * np.sqrt(max(good.sum() / max(n_cl, 1), 1.0))
         pin = None
         if round_axis_table is not None and len(free) == 6:
             pin = round_axis_table
@@ -824,7 +832,7 @@ def _refine(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_ca
             p[free] = q
             return p
 
-        def fun(q, X=X, n=n, target=target, T0=T0, c_table=c_table, pin=pin):
+        def fun(q, X=X, n=n, target=target, T0=T0, c_table=c_table, pin=pin, w_prior=w_prior):
             p = full(q)
             T1 = _perturb(T0, c_table, p)
             uv = project_points_px(transform_points(T_cam_table @ T1, X), K, dist)
@@ -832,7 +840,7 @@ def _refine(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_ca
             if pin is not None:   # round part: pin the unobservable spin
                 res = np.append(res, 1e4 * float(p[3:6] @ pin))
             if prior is not None:
-                res = np.append(res, PRIOR_PX * _prior_offsets(T1, prior, c_table))
+                res = np.append(res, w_prior * _prior_offsets(T1, prior, c_table))
             return res
 
         xs = np.array([1.0, 1.0, 1.0, 1e-3, 1e-3, 1e-3])[free]
@@ -1287,6 +1295,16 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
             free = free[:-1]          # round part standing on its face: its spin is not observable
         T, info = _refine(eimg, model, T0, T_cam_table, K, dist, occluders_cam, sub_fine, free=free,
                           radii=radii, min_contrast=min_contrast)
+        if 2 in free and known_heights_mm is not None:
+            # a height fitted freely that ends near a known surface, or under it (impossible), is that
+            # surface: the image alone slides the part along the line of sight
+            z0 = float(transform_points(T, model.mesh.vertices)[:, 2].min())
+            near = [h for h in known_heights_mm if z0 - SNAP_MM < h < z0 + SNAP_MM or (h > z0 and h - z0 < 3 * SNAP_MM)]
+            if near:
+                h = min(near, key=lambda h: abs(h - z0))
+                T = make_pose(None, [0.0, 0.0, h - z0]) @ T
+                T, info = _refine(eimg, model, T, T_cam_table, K, dist, occluders_cam, sub_fine,
+                                  free=tuple(f for f in free if f != 2), radii=radii[-2:], min_contrast=min_contrast)
         score, es, sup = _verify(eimg, model, T, T_cam_table, K, dist, occluders_cam, sub_fine,
                                  min_contrast=min_contrast)
         spacing = float(np.median(np.linalg.norm(np.diff(es.uv_px, axis=0), axis=1))) if len(es.index) > 2 else 0.0
@@ -1378,18 +1396,33 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     # turned by as much as moves a typical edge point (mean distance from the centre) by those pixels
     r_mean = float(np.mean(np.linalg.norm(model.samples_obj - model.center_obj, axis=1)))
     dth = shift_mm / max(r_mean, 1.0)
-    drops = {}
+    drops, owed = {}, {}
+    es_b, sup_b = best["es"], best["sup"]
     for key, q in (("x", (shift_mm, 0, 0)), ("-x", (-shift_mm, 0, 0)), ("y", (0, shift_mm, 0)),
                    ("-y", (0, -shift_mm, 0)), ("rz", (0, 0, dth)), ("-rz", (0, 0, -dth))):
         if model.continuous_axis_obj is not None and key.endswith("rz"):
             continue
-        sc, _, _ = _verify(eimg, model, _perturb3(best["T"], c_tab, np.array(q, float)), T_cam_table, K, dist,
-                           occluders_cam, sub_fine, min_contrast=min_contrast)
+        T_q = _perturb3(best["T"], c_tab, np.array(q, float))
+        sc, _, _ = _verify(eimg, model, T_q, T_cam_table, K, dist, occluders_cam, sub_fine, min_contrast=min_contrast)
         drops[key] = best["score"] - sc
-    pairs = [max(drops.get(a, 1.0), drops.get(b, 1.0)) for a, b in (("x", "-x"), ("y", "-y"), ("rz", "-rz"))]
+        # the drop the part's own geometry owes: supported samples that the move carries off their
+        # edge (a round outline turned, a long edge slid along itself, owe nothing)
+        if len(es_b.index):
+            uv_q = project_points_px(transform_points(T_cam_table @ T_q, es_b.points_obj), K, dist)
+            moved = np.abs(np.einsum("ij,ij->i", uv_q - es_b.uv_px, es_b.normal_uv)) > 1.5
+            owed[key] = float(np.count_nonzero(moved & sup_b)) / len(es_b.index)
+    pairs, pair_ok = [], []
+    for a, b in (("x", "-x"), ("y", "-y"), ("rz", "-rz")):
+        k = a if drops.get(a, 1.0) >= drops.get(b, 1.0) else b
+        d = drops.get(k, 1.0)
+        pairs.append(d)
+        # distinct: a clear drop, or (where the geometry owes less than twice that) at least half
+        # of what it owes: a flange's holes are all that turning it moves
+        need = min(min_distinctiveness, 0.5 * owed.get(k, 1.0)) if k.endswith("rz") else min_distinctiveness
+        pair_ok.append(d >= max(need, 0.02))
     distinct_drop = float(min(pairs))
-    if distinct_drop < min_distinctiveness:
-        weakest = ("x", "y", "rotation")[int(np.argmin(pairs))]
+    if not all(pair_ok):
+        weakest = ("x", "y", "rotation")[pair_ok.index(False)]
         timings["verify"] = (time.perf_counter() - t) * 1e3
         return fail("not_found",
                     f"{name} not found: the best fit ({best['score']:.0%} of its visible edges) is not "
@@ -1427,18 +1460,18 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
         tilt_sigma = float(np.degrees(np.sqrt(max(cov6[3, 3] + cov6[4, 4], 0.0)))) * sigma_scale
     if "sol" in info6 and tilt > max_tilt_deg and tilt > 3.0 * tilt_sigma:
         flags.append("tilt")          # the free fit says: not lying flat
-    # The flat pose stands unless the 6-DoF fit (with the contact prior) says clearly otherwise: a
-    # tilt or a lift beyond 3 sigma (a chip under an edge). Monocular height is weak: where the image
-    # cannot tell, the contact is the better guess. Either way the covariance is the 6-DoF posterior,
-    # so the stated sigma covers all six axes, height and tilt included.
-    T_table_obj, info = best["T"], best["info"]
-    if "sol" in info6:
-        c_obj = model.center_obj[None]
-        lift = float(transform_points(T6, c_obj)[0, 2] - transform_points(best["T"], c_obj)[0, 2])
-        lift_sigma = float(np.sqrt(max(cov6[2, 2], 0.0))) * sigma_scale
-        if tilt > 3.0 * tilt_sigma or abs(lift) > 3.0 * lift_sigma:
-            T_table_obj = T6
-        info = info6
+    # The pose returned is the 6-DoF fit with the contact prior (maximum a-posteriori): where the
+    # image cannot tell height and tilt, the contact holds them; where it can (a chip under an edge),
+    # the image wins. Its covariance is the posterior, so the stated sigma covers all six axes.
+    T_table_obj, info = (T6, info6) if "sol" in info6 else (best["T"], best["info"])
+    contact_conflict = False
+    if "sol" in info6 and np.max(np.abs(_prior_offsets(T6, prior))) > MAX_PRIOR_SIGMAS:
+        # the image pulls the part far off the surface it should rest on (or tilts it by degrees):
+        # either it does not rest as assumed or the fit is caught on other edges; keep the flat
+        # pose and say that its height and tilt are not known
+        contact_conflict = True
+        flags.append("contact")
+        T_table_obj, info = best["T"], best["info"]
     # of the poses that look exactly the same, give the most upright one (the part's CAD z up, as a
     # 3-axis work offset needs it); which of them is meant stays the operator's choice
     S_up = max([np.eye(4)] + [s.S for s in model.symmetries if s.exact],
@@ -1457,7 +1490,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     sigma = {"x_mm": float(sd[0]), "y_mm": float(sd[1]), "z_mm": float(sd[2]),
              "rx_deg": float(np.degrees(sd[3])), "ry_deg": float(np.degrees(sd[4])),
              "rz_deg": float(np.degrees(sd[5]))}
-    if "sol" not in info6:         # no 6-DoF fit: height and tilt are not measured, only assumed
+    if "sol" not in info6 or contact_conflict:     # height and tilt not measured, only assumed
         sigma.update(z_mm=float("nan"), rx_deg=float("nan"), ry_deg=float("nan"))
     if model.continuous_axis_obj is not None:
         ax = np.abs(T_table_obj[:3, :3] @ model.continuous_axis_obj)

@@ -71,6 +71,20 @@ def support_surfaces(mesh: trimesh.Trimesh, T_table_obj: np.ndarray, carrier: st
     return sorted(out, key=lambda s: -s.height_mm)
 
 
+def declared_surfaces(declared: list[dict], T_table_obj: np.ndarray, carrier: str) -> list[SupportSurface]:
+    """Support surfaces declared with a library model (its manifest or REST entry): each a plane
+    patch ``{"name", "z_mm", "outline_xy": [[x, y], ...]}`` in the model frame, placed at
+    ``T_table_obj`` (a fixture stands upright, so the patch stays horizontal)."""
+    out = []
+    for d in declared:
+        xy = np.asarray(d["outline_xy"], float).reshape(-1, 2)
+        pts = transform_points(np.asarray(T_table_obj, float), np.column_stack([xy, np.full(len(xy), float(d["z_mm"]))]))
+        a = 0.5 * abs(float(np.dot(xy[:, 0], np.roll(xy[:, 1], 1)) - np.dot(xy[:, 1], np.roll(xy[:, 0], 1))))
+        name = f"{carrier} {d['name']}" if d.get("name") else carrier
+        out.append(SupportSurface(name, float(pts[:, 2].mean()), pts[:, :2], a))
+    return sorted(out, key=lambda s: -s.height_mm)
+
+
 def table_surface(extent_xy: tuple[float, float, float, float] | None = None) -> SupportSurface:
     """The table top itself (z = 0); its outline is the given extent or unbounded."""
     if extent_xy is None:

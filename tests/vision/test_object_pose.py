@@ -70,7 +70,7 @@ def test_locates_the_clamped_bracket(models, clamped):
     res = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma)
     assert isinstance(res, ObjectPose), getattr(res, "reason", "")
     dxy, dz, drz = _errors(res.T_table_obj, T_br)
-    assert dxy < 0.4 and abs(dz) < 1e-6 and drz < 0.15          # 960 x 600, ~1 mm per pixel
+    assert dxy < 0.4 and abs(dz) < 0.3 and drz < 0.15           # 960 x 600, ~1 mm per pixel
     np.testing.assert_allclose(res.T_table_obj, inv(scene.T_cam_table) @ res.T_cam_obj, atol=1e-9)
     assert all(np.isfinite(v) and v >= 0 for v in res.sigma.values())
     assert res.score >= 0.35 and res.distinctiveness >= 0.1
@@ -107,8 +107,9 @@ def test_symmetric_block_reports_every_equivalent_pose(models, block_scene):
     errs = [_errors(Te, T) for Te in (res.T_table_obj, *res.equivalent_poses)]
     assert min(e[0] + e[2] for e in errs) < 0.4
     # the flips about x and y stand on the other face: equivalent, not a different height
-    assert all(abs(Te[2, 3] - res.T_table_obj[2, 3]) < 1e-6 or abs(Te[2, 3] - res.T_table_obj[2, 3] - 40) < 1e-6
-               or abs(Te[2, 3] - res.T_table_obj[2, 3] + 40) < 1e-6 for Te in res.equivalent_poses)
+    # (within the small tilt the 6-DoF fit may give the block: 0.1 mm over its 120 mm)
+    assert all(min(abs(Te[2, 3] - res.T_table_obj[2, 3] - dz) for dz in (0.0, 40.0, -40.0)) < 0.1
+               for Te in res.equivalent_poses)
 
 
 @pytest.mark.parametrize("dx, dy, drz_deg", [(0.0, 0.0, 0.0), (18.0, -9.0, 5.0), (-25.0, 12.0, -6.0)])
