@@ -422,11 +422,15 @@ def _support_maps(rays, C, z: float, extent_xy, b: float, n_channels: int, tau_b
     return sup
 
 
-# The least-squares sigma treats every edge sample as independent; they are not (neighbours share
-# blur, noise and edge position). Calibrated on held-out generated scenes (numbers 100-159, 139
-# error components): 68 % of |error| / sigma fell within 1.28 -> 1.3. Command:
-# .venv/bin/python benchmarks/object_pose.py --scenes 0 --pairs 0 --calibrate-sigma 60
-SIGMA_SCALE = 1.3
+# The least-squares sigma (cluster-robust over model edges, contact prior) still misses what is
+# shared between edges (blur, shading, the table pose). Fitted on the independent devset's first half
+# only (setup_000-019, 13 located scenes, 78 error components of x, y, z, rx, ry, rz): the 68th
+# percentile of |error| / sigma was 1.38 at the former scale 1.3 (fitted on our own generator), so
+# 1.3 x 1.38 = 1.8. Applied to the image's share of the covariance only (the contact prior is
+# physical), the first half then has 67 % of the components within 1 sigma and 99 % within 3; the
+# second half (setup_020-039) checks it. Command:
+# .venv/bin/python benchmarks/devset_pose.py --methods engine --scenes setup_000,...,setup_019
+SIGMA_SCALE = 1.8
 
 # Contact prior of the final fit (see locate_object): a part on a known surface sits on it within
 # CONTACT_SIGMA_MM and tilts within CONTACT_SIGMA_DEG (chips, burrs, a strap pressing one side; the
@@ -880,7 +884,7 @@ def _prior_offsets(T: np.ndarray, prior, c_table: np.ndarray | None = None) -> n
     return np.array([dz / sz, rv[0] / st, rv[1] / st])
 
 
-def _covariance(info: dict, K, dist, T_cam_table) -> tuple[np.ndarray, np.ndarray, float]:
+def _covariance(info: dict, K, dist, T_cam_table, data_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
     """6x6 covariance of p = (t mm at the part's centre, rotation vector rad) from the last solve
     over the robust inliers (zero rows/columns for parameters held fixed): the classical
     ``(J^T J)^-1 s^2`` plus the cluster-robust term for errors shared along each model edge."""
@@ -921,7 +925,7 @@ def _covariance(info: dict, K, dist, T_cam_table) -> tuple[np.ndarray, np.ndarra
     n_cl = len(np.unique(edges))
     G *= n_cl / max(n_cl - len(free), 1)          # small-sample correction
     cov_cl = Ainv @ G @ Ainv
-    cov_f = cov_cl + cov_iid
+    cov_f = (cov_cl + cov_iid) * data_scale ** 2   # the image's share, calibrated; the prior is physical
     prior = info.get("prior")
     if prior is not None:         # prior information on height and tilt (MAP): add it, invert back
         P = np.diag([0.0, 0.0, 1.0 / prior[1] ** 2, 1.0 / prior[2] ** 2, 1.0 / prior[2] ** 2, 0.0])[np.ix_(free, free)]
@@ -1022,9 +1026,21 @@ def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, heig
     hyps.sort(key=lambda h: -h.votes)
     # votes are not comparable between resting states (a part on its side shows other edges):
     # keep the best few of every state besides the best overall
+    # nor between heights (a riser plane full of the table's edges outvotes the part's own): the
+    # best two of every (state, height) as well
     top = {id(h) for h in hyps[:n_planar]}
-    hyps = hyps[:n_planar] + [h for st in states for h in [g for g in hyps if g.state == st][:3]
-                              if id(h) not in top]
+    groups: dict = {}
+    for h in hyps:
+        groups.setdefault((h.state, round(h.height_mm, 1)), []).append(h)
+    extra = [h for st in states for h in [g for g in hyps if g.state == st][:3]]
+    extra += [h for g in groups.values() for h in g[:2]]
+    seen = set(top)
+    keep = list(hyps[:n_planar])
+    for h in extra:
+        if id(h) not in seen:
+            seen.add(id(h))
+            keep.append(h)
+    hyps = keep
     z_typ = float(np.median(transform_points(T_cam_table, np.array([[*h.T_table_obj[:2, 3], 0.0] for h in hyps]))[:, 2]))
     px_per_mm = K[0, 0] / max(z_typ, 1.0)
     sub_coarse = _sample_subset(model, px_per_mm, 4.0, 400)
@@ -1206,7 +1222,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
         whether they hold (flag "uncertainty" when not)
     n_starts : search peaks per resting state and height; n_planar : best of those aligned in the
         table plane; n_refine : distinct aligned starts refined and verified
-    sigma_scale : factor on the least-squares sigma (edge samples along one edge are not independent);
+    sigma_scale : factor on the image's share of the covariance (before the contact prior joins it);
         default :data:`SIGMA_SCALE`
 
     known_heights_mm : heights (table z) of surfaces known to carry parts (the table, located
@@ -1456,8 +1472,8 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     flags = []
     tilt_sigma = float("nan")
     if "sol" in info6:
-        cov6, _, _ = _covariance(info6, K, dist, T_cam_table)
-        tilt_sigma = float(np.degrees(np.sqrt(max(cov6[3, 3] + cov6[4, 4], 0.0)))) * sigma_scale
+        cov6, _, _ = _covariance(info6, K, dist, T_cam_table, data_scale=sigma_scale)
+        tilt_sigma = float(np.degrees(np.sqrt(max(cov6[3, 3] + cov6[4, 4], 0.0))))
     if "sol" in info6 and tilt > max_tilt_deg and tilt > 3.0 * tilt_sigma:
         flags.append("tilt")          # the free fit says: not lying flat
     # The pose returned is the 6-DoF fit with the contact prior (maximum a-posteriori): where the
@@ -1477,7 +1493,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     S_up = max([np.eye(4)] + [s.S for s in model.symmetries if s.exact],
                key=lambda S: round(float((T_table_obj @ S)[2, 2]), 6))
     T_table_obj, T6 = T_table_obj @ S_up, T6 @ S_up
-    cov, inl, rms = _covariance(info, K, dist, T_cam_table)
+    cov, inl, rms = _covariance(info, K, dist, T_cam_table, data_scale=sigma_scale)
     # covariance of (origin position, rotation): origin = c + R(dr)(o - c) + dt
     o = T_table_obj[:3, 3]
     c = transform_points(T_table_obj, model.center_obj[None])[0]
@@ -1485,7 +1501,6 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     A = np.eye(6)
     A[:3, 3:] = -np.array([[0, -lever[2], lever[1]], [lever[2], 0, -lever[0]], [-lever[1], lever[0], 0]])
     cov_o = A @ cov @ A.T
-    cov_o = cov_o * sigma_scale ** 2
     sd = np.sqrt(np.maximum(np.diag(cov_o), 0))
     sigma = {"x_mm": float(sd[0]), "y_mm": float(sd[1]), "z_mm": float(sd[2]),
              "rx_deg": float(np.degrees(sd[3])), "ry_deg": float(np.degrees(sd[4])),

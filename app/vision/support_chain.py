@@ -94,10 +94,10 @@ def table_surface(extent_xy: tuple[float, float, float, float] | None = None) ->
                           (x1 - x0) * (y1 - y0))
 
 
-# Risers of unknown height (parallels, blocks) between a surface and the part: 0 to 60 mm, every
+# Risers of unknown height (parallels, blocks, a vise not in the library) under the part: 0 to 120 mm, every
 # 7.5 mm on the table (the plane search catches a part up to ~5 mm off its true height, the fit
 # with the height free settles it), every 5 mm on a fixture's smaller surfaces.
-TABLE_RISERS_MM = tuple(np.arange(0.0, 60.0 + 1e-9, 7.5))
+TABLE_RISERS_MM = tuple(np.arange(0.0, 120.0 + 1e-9, 7.5))
 FIXTURE_RISERS_MM = tuple(np.arange(0.0, 40.0 + 1e-9, 5.0))
 
 

@@ -23,7 +23,10 @@ TRAVEL = {"x": [-600, 600], "y": [-400, 400], "z": [-500, 0]}
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    with live_server(tmp_path_factory.mktemp("e2e")) as srv:
+    # One image fixes a part's height on the table to about +-0.3 mm (the fit and the contact prior,
+    # honestly stated); this test is about the chain to the controller, not the tolerance: the cell
+    # accepts 0.5 mm (the default, 0.3 mm, asks for a probe in Z on such a view).
+    with live_server(tmp_path_factory.mktemp("e2e"), max_sigma_mm=0.5) as srv:
         yield srv
 
 
