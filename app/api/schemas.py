@@ -23,6 +23,10 @@ class RevisionPublic(BaseModel):
     units: str = Field(description="Units of the uploaded file; all geometry here is in mm.")
     T_obj_datum: list[list[float]] | None = Field(description="Pose of the datum (NC zero) in the model frame, mm.")
     fiducials: dict | None
+    support_surfaces: list[dict[str, Any]] | None = Field(
+        default=None, description="Fixtures: the plane patches a part can rest on, in the model frame (mm): "
+                                  '[{"name", "z_mm", "outline_xy": [[x, y], ...]}]; null: derived from the '
+                                  "mesh's upward faces; []: carries nothing.")
     summary: dict[str, Any] = Field(description="Bounding box (mm), face and vertex counts, watertightness.")
     resting_poses: list[dict[str, Any]] = Field(description="Stable poses on a plane: T_plane_obj and probability.")
     note: str

@@ -3,7 +3,12 @@
     {"models": [{"key": "tslot_table_800x400", "kind": "table", "name": "...",
                  "file": "tslot_table_800x400.stl", "units": "mm",
                  "fiducials": "tslot_table_800x400.fiducials.json" | null,
-                 "T_obj_datum": 4x4 | null, "description": "..."}]}
+                 "T_obj_datum": 4x4 | null, "description": "...",
+                 "support_surfaces": [{"name": "seat", "z_mm": 70.0, "outline_xy": [[x, y], ...]}]}]}
+
+``support_surfaces`` (optional, clamps and supports only): the plane patches a part can rest on, in
+the model's own frame (``app/geometry/support_surfaces.py``); left out or null: derived from the
+mesh's upward faces; []: the model carries nothing.
 
 Paths are relative to the manifest's folder. Pure: reads files, no database.
 """
@@ -19,9 +24,10 @@ import numpy as np
 
 from app.geometry.fiducial_layout import FiducialLayout, parse_layout
 from app.geometry.mesh import SUPPORTED_SUFFIXES, UNIT_SCALE_TO_MM
+from app.geometry.support_surfaces import parse_support_surfaces
 from app.geometry.transforms import PoseError, check_pose
 
-KINDS = ("workpiece", "clamp", "table")
+KINDS = ("workpiece", "clamp", "support", "table")
 MANIFEST_NAME = "library.json"
 _KEY_RE = re.compile(r"^[a-z0-9][a-z0-9_\-]{0,63}$")
 
@@ -33,7 +39,8 @@ class LibraryManifestError(ValueError):
 @dataclass(frozen=True)
 class LibraryEntry:
     """One model of the library. ``file`` / ``fiducials`` are relative to the library folder;
-    ``T_obj_datum`` (4x4, mm) or None; ``layout`` is the parsed fiducial layout or None."""
+    ``T_obj_datum`` (4x4, mm) or None; ``layout`` is the parsed fiducial layout or None;
+    ``support_surfaces`` the declared surfaces (model frame, mm) or None (derive from the mesh)."""
 
     key: str
     kind: str
@@ -45,6 +52,7 @@ class LibraryEntry:
     description: str
     layout: FiducialLayout | None = field(default=None, repr=False)
     library_dir: Path = field(default=Path("."), repr=False)
+    support_surfaces: list[dict] | None = field(default=None, repr=False, hash=False)
 
     @property
     def path(self) -> Path:
@@ -103,14 +111,20 @@ def _entry(raw: object, i: int, library_dir: Path) -> LibraryEntry:
     elif kind == "table":
         raise LibraryManifestError(f"{where}: a table needs a fiducial layout (fiducials: file name)")
 
+    try:
+        surfaces = parse_support_surfaces(raw.get("support_surfaces"), kind)
+    except ValueError as exc:
+        raise LibraryManifestError(f"{where}: {exc}") from None
+
     return LibraryEntry(key=key, kind=kind, name=raw["name"].strip(), file=file, units=units,
                         fiducials=fid, T_obj_datum=T, description=str(raw.get("description", "")),
-                        layout=layout, library_dir=library_dir)
+                        layout=layout, library_dir=library_dir, support_surfaces=surfaces)
 
 
 def load_library_manifest(library_dir: Path | str) -> list[LibraryEntry]:
     """Read ``<library_dir>/library.json`` and validate every entry (files exist, kinds, units,
-    poses via ``check_pose``, fiducial layouts via ``parse_layout``, unique keys).
+    poses via ``check_pose``, fiducial layouts via ``parse_layout``, support surfaces via
+    ``parse_support_surfaces``, unique keys).
 
     Raises
     ------

@@ -7,6 +7,7 @@ geometry or frames creates revision n+1, and older revisions stay readable.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 from dataclasses import asdict, is_dataclass
@@ -18,6 +19,7 @@ from sqlmodel import Session, col, func, select
 
 from app.geometry import mesh as meshlib
 from app.geometry.fiducial_layout import parse_layout
+from app.geometry.support_surfaces import check_within_bounds, parse_support_surfaces
 from app.geometry.transforms import PoseError, check_pose
 from app.services.errors import Invalid, NotFound, TooLarge
 from app.store.files import FileStore
@@ -25,7 +27,7 @@ from app.store.models import LibraryModel, ModelRevision, utcnow
 
 log = logging.getLogger(__name__)
 
-KINDS = ("workpiece", "clamp", "table")
+KINDS = ("workpiece", "clamp", "support", "table")
 UNITS = ("mm", "inch")
 _UNSET: Any = object()
 
@@ -81,6 +83,28 @@ def parse_fiducials(value: Any) -> dict | None:
         raise Invalid(str(exc)) from None
 
 
+def parse_surfaces(value: Any, kind: str) -> list[dict] | None:
+    """Declared support surfaces from JSON text or a list (None stays None, [] is kept); 422 with the
+    reason otherwise (``app/geometry/support_surfaces.py``)."""
+    if isinstance(value, str) and value.strip() == "":
+        return None
+    try:
+        return parse_support_surfaces(_from_json_text(value, "support_surfaces"), kind)
+    except ValueError as exc:
+        raise Invalid(str(exc)) from None
+
+
+def _check_surfaces_on_model(surfaces: list[dict] | None, summary: dict) -> None:
+    """The surfaces lie on the model (its bounding box, give or take 2 mm); 422 naming the one that does not."""
+    lo, hi = summary.get("bbox_min_mm"), summary.get("bbox_max_mm")
+    if not surfaces or lo is None or hi is None:
+        return
+    try:
+        check_within_bounds(surfaces, [lo, hi])
+    except ValueError as exc:
+        raise Invalid(f"{exc}; support surfaces are given in mm in the model's own frame") from None
+
+
 def _process_geometry(files: FileStore, session: Session, data: bytes, filename: str, units: str,
                       max_bytes: int, max_faces: int) -> dict[str, Any]:
     """Parse and normalise one upload; returns the revision's geometry fields."""
@@ -110,20 +134,24 @@ def _process_geometry(files: FileStore, session: Session, data: bytes, filename:
 
 def create_model(session: Session, files: FileStore, *, data: bytes, filename: str, kind: str, name: str,
                  units: str = "mm", T_obj_datum: Any = None, fiducials: Any = None, description: str = "",
-                 key: str | None = None, max_bytes: int = 64_000_000, max_faces: int = 2_000_000) -> LibraryModel:
+                 key: str | None = None, support_surfaces: Any = None, max_bytes: int = 64_000_000,
+                 max_faces: int = 2_000_000) -> LibraryModel:
     check_kind_units(kind, units)
     name = (name or "").strip()
     if not name:
         raise Invalid("name must not be empty")
     datum = parse_frame(T_obj_datum, "T_obj_datum")
     layout = parse_fiducials(fiducials)
+    surfaces = parse_surfaces(support_surfaces, kind)
     if kind == "table" and layout is None:
         log.info("table model %r uploaded without fiducial layout", name)
     geometry = _process_geometry(files, session, data, filename, units, max_bytes, max_faces)
+    _check_surfaces_on_model(surfaces, geometry["summary"])
     model = LibraryModel(kind=kind, name=name, description=description, key=key, current_revision=1)
     session.add(model)
     session.flush()
-    session.add(ModelRevision(model_id=model.id, revision=1, T_obj_datum=datum, fiducials=layout, **geometry))
+    session.add(ModelRevision(model_id=model.id, revision=1, T_obj_datum=datum, fiducials=layout,
+                              support_surfaces=surfaces, **geometry))
     session.flush()
     log.info("model created", extra={"model_id": model.id, "model_name": name, "kind": kind})
     return model
@@ -131,8 +159,8 @@ def create_model(session: Session, files: FileStore, *, data: bytes, filename: s
 
 def add_revision(session: Session, files: FileStore, model_id: int, *, data: bytes | None = None,
                  filename: str | None = None, units: str | None = None, T_obj_datum: Any = _UNSET,
-                 fiducials: Any = _UNSET, note: str = "", max_bytes: int = 64_000_000,
-                 max_faces: int = 2_000_000) -> ModelRevision:
+                 fiducials: Any = _UNSET, support_surfaces: Any = _UNSET, note: str = "",
+                 max_bytes: int = 64_000_000, max_faces: int = 2_000_000) -> ModelRevision:
     """Make revision n+1 from revision n with the given changes (geometry and/or frames)."""
     model = get_model(session, model_id)
     check_kind_units(None, units)
@@ -154,8 +182,13 @@ def add_revision(session: Session, files: FileStore, model_id: int, *, data: byt
     if fiducials is not _UNSET:
         fields["fiducials"] = parse_fiducials(fiducials)
         changed = True
+    if support_surfaces is not _UNSET:
+        fields["support_surfaces"] = parse_surfaces(support_surfaces, model.kind)
+        changed = True
     if not changed:
-        raise Invalid("nothing to change: give a file, units, T_obj_datum or fiducials")
+        raise Invalid("nothing to change: give a file, units, T_obj_datum, fiducials or support_surfaces")
+    # new geometry or new surfaces: the surfaces must still lie on the model
+    _check_surfaces_on_model(fields.get("support_surfaces"), fields["summary"])
     rev = ModelRevision(**{**fields, "revision": model.current_revision + 1, "note": note[:500]})
     model.current_revision = rev.revision
     session.add(rev)
@@ -210,25 +243,39 @@ def soft_delete(session: Session, model_id: int) -> None:
 
 
 def load_example_library(session: Session, files: FileStore, library_dir: Path) -> list[str]:
-    """Load models_library/ once: entries whose key already exists are skipped. Returns keys added."""
+    """Load models_library/ once: entries whose key already exists are skipped. Returns keys added.
+
+    One exception keeps older installations current: an example model still at its first revision,
+    from the same file, that has no support surfaces while the manifest now declares some gets them
+    as revision 2 (once: then it has them; a model the admin revised is left alone)."""
     manifest = Path(library_dir) / "library.json"
     if not manifest.exists():
         log.warning("example library not found at %s", manifest)
         return []
     from app.geometry.library_manifest import load_library_manifest
 
-    added = []
+    added, updated = [], []
     for entry in load_library_manifest(Path(library_dir)):
-        if session.exec(select(LibraryModel).where(LibraryModel.key == entry.key)).first():
+        data = (Path(library_dir) / entry.file).read_bytes()
+        existing = session.exec(select(LibraryModel).where(LibraryModel.key == entry.key)).first()
+        if existing is not None:
+            if entry.support_surfaces is not None and existing.current_revision == 1:
+                rev = get_revision(session, existing.id)
+                if rev.support_surfaces is None and rev.source_sha256 == hashlib.sha256(data).hexdigest():
+                    add_revision(session, files, existing.id, support_surfaces=entry.support_surfaces,
+                                 note="support surfaces declared in the example library")
+                    updated.append(entry.key)
             continue
         fiducials = None
         if entry.fiducials:
             fiducials = json.loads((Path(library_dir) / entry.fiducials).read_text())
-        create_model(session, files, data=(Path(library_dir) / entry.file).read_bytes(), filename=entry.file,
+        create_model(session, files, data=data, filename=entry.file,
                      kind=entry.kind, name=entry.name, units=entry.units,
                      T_obj_datum=_jsonable(entry.T_obj_datum), fiducials=fiducials,
-                     description=entry.description, key=entry.key)
+                     description=entry.description, key=entry.key, support_surfaces=entry.support_surfaces)
         added.append(entry.key)
     if added:
         log.info("example library loaded", extra={"keys": added})
+    if updated:
+        log.info("example library: support surfaces added", extra={"keys": updated})
     return added

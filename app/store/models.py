@@ -12,7 +12,7 @@ from typing import Any, Literal
 from sqlalchemy import JSON, Column, UniqueConstraint
 from sqlmodel import Field, SQLModel
 
-ModelKind = Literal["workpiece", "clamp", "table"]
+ModelKind = Literal["workpiece", "clamp", "support", "table"]
 Units = Literal["mm", "inch"]
 
 
@@ -39,7 +39,7 @@ class StoredFile(SQLModel, table=True):
 
 # --------------------------------------------------------------------------------------- library
 class LibraryModel(SQLModel, table=True):
-    """A library entry (workpiece, clamp or table). Its geometry and frames live in revisions."""
+    """A library entry (workpiece, clamp, support or table). Its geometry and frames live in revisions."""
 
     __tablename__ = "library_model"
     id: int | None = Field(default=None, primary_key=True)
@@ -68,6 +68,9 @@ class ModelRevision(SQLModel, table=True):
     units: str = Field(max_length=10, description="Units of the uploaded file; geometry is stored in mm.")
     T_obj_datum: list[list[float]] | None = json_field()
     fiducials: dict | None = json_field()
+    # fixtures: plane patches a part can rest on, model frame ({"name", "z_mm", "outline_xy"}, mm);
+    # None: derived from the mesh's upward faces; []: carries nothing
+    support_surfaces: list[dict] | None = json_field()
     summary: dict = json_field(default_factory=dict, nullable=False)
     resting_poses: list[dict] = json_field(default_factory=list, nullable=False)
     note: str = Field(default="", max_length=500)

@@ -62,6 +62,7 @@ def test_committed_files_match_the_generator():
             assert e.layout is None, stale
         else:
             assert json.loads(e.fiducials_path.read_text()) == json.loads(json.dumps(model.layout)), stale
+        assert e.support_surfaces == model.support_surfaces, stale
 
 
 def _copy_library(tmp_path: Path) -> tuple[Path, dict]:
@@ -71,7 +72,8 @@ def _copy_library(tmp_path: Path) -> tuple[Path, dict]:
 
 
 @pytest.mark.parametrize("mutate, message", [
-    (lambda doc: doc["models"][1].update(kind="fixture"), "kind 'fixture' unknown; use one of workpiece, clamp, table"),
+    (lambda doc: doc["models"][1].update(kind="fixture"),
+     "kind 'fixture' unknown; use one of workpiece, clamp, support, table"),
     (lambda doc: doc["models"][1].update(units="m"), "units 'm' unknown"),
     (lambda doc: doc["models"][1].update(file="missing.stl"), "file 'missing.stl' not found"),
     (lambda doc: doc["models"][1].update(file="../../etc/passwd.stl"), "must be a path inside the library folder"),
@@ -82,6 +84,20 @@ def _copy_library(tmp_path: Path) -> tuple[Path, dict]:
     (lambda doc: doc["models"][0].update(fiducials=None), "a table needs a fiducial layout"),
     (lambda doc: doc["models"][2].update(key="Bad Key!"), "key must be"),
     (lambda doc: doc.pop("models"), 'expected an object {"models": [...]}'),
+    (lambda doc: doc["models"][1].update(support_surfaces={"name": "seat"}),
+     "('vise_150'): support_surfaces: expected a list of surfaces (or null), got dict"),
+    (lambda doc: doc["models"][1]["support_surfaces"][0].update(outline_xy=[[0, 0], [80, 0]]),
+     "support_surfaces[0].outline_xy: List should have at least 3 items"),
+    (lambda doc: doc["models"][1]["support_surfaces"][0].update(z_mm="high"),
+     "support_surfaces[0].z_mm: Input should be a valid number"),
+    (lambda doc: doc["models"][1]["support_surfaces"][0].update(outline_xy=[[0, 0], [10, 0], [20, 0]]),
+     "encloses 0 mm²"),
+    (lambda doc: doc["models"][1].update(support_surfaces=[{"name": f"s{i}", "z_mm": 70,
+                                                            "outline_xy": [[0, 0], [9, 0], [0, 9]]} for i in range(17)]),
+     "support_surfaces: 17 surfaces; at most 16"),
+    (lambda doc: doc["models"][4].update(support_surfaces=[{"name": "top", "z_mm": 16,
+                                                            "outline_xy": [[0, 0], [32, 0], [0, 24]]}]),
+     "pin_block_32'): support_surfaces: a workpiece carries no parts"),
 ])
 def test_bad_manifest_is_refused_with_a_clear_sentence(tmp_path, mutate, message):
     d, doc = _copy_library(tmp_path)
@@ -90,6 +106,38 @@ def test_bad_manifest_is_refused_with_a_clear_sentence(tmp_path, mutate, message
     with pytest.raises(LibraryManifestError) as e:
         load_library_manifest(d)
     assert message in str(e.value)
+
+
+def test_support_surfaces_declared_left_out_or_empty(tmp_path):
+    """Declared surfaces are read as given (model frame, mm); left out or null means "derive them
+    from the mesh" (None); [] means the model carries nothing."""
+    entries = {e.key: e for e in load_library_manifest(LIBRARY)}
+    assert entries["vise_150"].support_surfaces == [
+        {"name": "seat", "z_mm": 70.0, "outline_xy": [[0.0, -55.0], [80.0, -55.0], [80.0, 55.0], [0.0, 55.0]]}]
+    assert entries["vise_125"].support_surfaces[0]["name"] == "seat"
+    assert entries["vise_125"].support_surfaces[0]["z_mm"] == 55.0
+    for key, height in (("parallel_150x25x8", 25.0), ("parallel_150x32x8", 32.0)):
+        e = entries[key]
+        assert e.kind == "support"
+        (top,) = e.support_surfaces
+        m = load_mesh(e.path.read_bytes(), e.file, e.units)
+        # the declared top face is the mesh's top face: 150 long (x), 8 thick (y), base centre at the origin
+        assert top["z_mm"] == height == pytest.approx(m.bounds[1, 2])
+        assert np.allclose(m.bounds, [[-75, -4, 0], [75, 4, height]])
+        assert np.allclose(np.min(top["outline_xy"], axis=0), [-75, -4])
+        assert np.allclose(np.max(top["outline_xy"], axis=0), [75, 4])
+    assert entries["strap_clamp_125"].support_surfaces is None       # not declared: the field is left out
+    assert entries["bracket_140"].support_surfaces is None
+
+    d, doc = _copy_library(tmp_path)
+    doc["models"][1]["support_surfaces"] = []                         # the vise carries nothing
+    doc["models"][2]["support_surfaces"] = None                       # explicit null = left out
+    doc["models"][3]["support_surfaces"] = [{"name": " pad ", "z_mm": 50, "outline_xy": [[0, 0], [20, 0], [20, 10]]}]
+    doc["models"][4]["support_surfaces"] = []                         # a workpiece saying it carries nothing is fine
+    (d / "library.json").write_text(json.dumps(doc))
+    got = {e.key: e.support_surfaces for e in load_library_manifest(d)}
+    assert got["vise_150"] == [] and got["strap_clamp_125"] is None and got["pin_block_32"] == []
+    assert got["strap_clamp_175"] == [{"name": "pad", "z_mm": 50.0, "outline_xy": [[0.0, 0.0], [20.0, 0.0], [20.0, 10.0]]}]
 
 
 def test_bad_fiducial_layout_names_the_marker(tmp_path):

@@ -1,4 +1,4 @@
-"""/api/v1/models: the CAD model library (workpieces, clamps, tables)."""
+"""/api/v1/models: the CAD model library (workpieces, clamps, supports, tables)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,16 @@ from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile,
 
 from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
 from app.api.schemas import ModelPublic, Page, RevisionPublic
+from app.api.uploads import json_form
 from app.services import library
 from app.store.models import LibraryModel, ModelRevision
 
 router = APIRouter(prefix="/models", tags=["models"], dependencies=[Depends(get_principal)])
 
 DATUM_EXAMPLE = "[[1,0,0,0],[0,1,0,0],[0,0,1,25],[0,0,0,1]]"
+SURFACES_EXAMPLE = '[{"name": "top", "z_mm": 25, "outline_xy": [[-75, -4], [75, -4], [75, 4], [-75, 4]]}]'
+SURFACES_HELP = ("Support surfaces JSON (clamps and supports): plane patches a part can rest on, model frame, mm; "
+                 "at most 16, each {name, z_mm, outline_xy: >= 3 [x, y]}")
 
 
 def to_public(model: LibraryModel, rev: ModelRevision) -> ModelPublic:
@@ -37,26 +41,30 @@ async def _read_upload(file: UploadFile, max_bytes: int) -> bytes:
 async def create_model(
     session: SessionDep, files: FilesDep, settings: SettingsDep, _admin: AdminPrincipal,
     file: Annotated[UploadFile, File(description="The CAD file")],
-    kind: Annotated[str, Form(description="workpiece | clamp | table", examples=["workpiece"])],
+    kind: Annotated[str, Form(description="workpiece | clamp | support | table", examples=["workpiece"])],
     name: Annotated[str, Form(examples=["Bracket 4711"])],
     units: Annotated[str, Form(description="Units of the file: mm | inch (stored in mm)")] = "mm",
     T_obj_datum: Annotated[str | None, Form(description="4x4 JSON, pose of the datum in the model frame (mm)",
                                             examples=[DATUM_EXAMPLE])] = None,
     fiducials: Annotated[str | None, Form(description="Fiducial layout JSON (DESIGN format)")] = None,
     description: Annotated[str, Form()] = "",
+    support_surfaces: Annotated[str | None, Form(description=SURFACES_HELP + "; left out: derived from the mesh",
+                                                 examples=[SURFACES_EXAMPLE])] = None,
 ) -> ModelPublic:
     max_bytes = int(settings.max_upload_mb * 1e6)
+    surfaces = json_form(support_surfaces, "support_surfaces")
     data = await _read_upload(file, max_bytes)
     model = library.create_model(session, files, data=data, filename=file.filename or "upload", kind=kind,
                                  name=name, units=units, T_obj_datum=T_obj_datum, fiducials=fiducials,
-                                 description=description, max_bytes=max_bytes, max_faces=settings.max_mesh_faces)
+                                 description=description, support_surfaces=surfaces, max_bytes=max_bytes,
+                                 max_faces=settings.max_mesh_faces)
     return to_public(model, library.get_revision(session, model.id))
 
 
 @router.get("", response_model=Page[ModelPublic], summary="List models (filter by kind and name)")
 def list_models(
     session: SessionDep,
-    kind: Annotated[Literal["workpiece", "clamp", "table"] | None, Query()] = None,
+    kind: Annotated[Literal["workpiece", "clamp", "support", "table"] | None, Query()] = None,
     name: Annotated[str | None, Query(description="Case-insensitive part of the name")] = None,
     include_deleted: bool = False,
     offset: Annotated[int, Query(ge=0)] = 0,
@@ -78,7 +86,7 @@ def list_revisions(session: SessionDep, model_id: int) -> list[RevisionPublic]:
 
 
 @router.post("/{model_id}/revisions", status_code=status.HTTP_201_CREATED, response_model=ModelPublic,
-             summary="Make a new revision: new geometry, units, datum frame or fiducials")
+             summary="Make a new revision: new geometry, units, datum frame, fiducials or support surfaces")
 async def add_revision(
     session: SessionDep, files: FilesDep, settings: SettingsDep, _admin: AdminPrincipal, model_id: int,
     file: Annotated[UploadFile | None, File()] = None,
@@ -86,6 +94,9 @@ async def add_revision(
     T_obj_datum: Annotated[str | None, Form(description="4x4 JSON; the text 'null' removes the datum",
                                             examples=[DATUM_EXAMPLE])] = None,
     fiducials: Annotated[str | None, Form(description="Layout JSON; 'null' removes it")] = None,
+    support_surfaces: Annotated[str | None, Form(description=SURFACES_HELP + "; 'null' removes them (derived "
+                                                             "from the mesh again), '[]' says it carries nothing",
+                                                 examples=[SURFACES_EXAMPLE])] = None,
     note: Annotated[str, Form()] = "",
 ) -> ModelPublic:
     max_bytes = int(settings.max_upload_mb * 1e6)
@@ -96,6 +107,8 @@ async def add_revision(
         kwargs["T_obj_datum"] = None if T_obj_datum.strip() == "null" else T_obj_datum
     if fiducials is not None:
         kwargs["fiducials"] = None if fiducials.strip() == "null" else fiducials
+    if support_surfaces is not None:
+        kwargs["support_surfaces"] = json_form(support_surfaces.strip(), "support_surfaces")
     rev = library.add_revision(session, files, model_id, units=units, note=note, max_bytes=max_bytes,
                                max_faces=settings.max_mesh_faces, **kwargs)
     return to_public(library.get_model(session, model_id), rev)
