@@ -33,10 +33,13 @@ def stl_bytes(mesh) -> bytes:
 
 
 def manifest_entry(m: ExampleModel) -> dict:
-    return {"key": m.key, "kind": m.kind, "name": m.name, "file": f"{m.key}.stl", "units": "mm",
-            "fiducials": f"{m.key}.fiducials.json" if m.layout else None,
-            "T_obj_datum": None if m.T_obj_datum is None else np.round(m.T_obj_datum, 6).tolist(),
-            "description": m.description}
+    entry = {"key": m.key, "kind": m.kind, "name": m.name, "file": f"{m.key}.stl", "units": "mm",
+             "fiducials": f"{m.key}.fiducials.json" if m.layout else None,
+             "T_obj_datum": None if m.T_obj_datum is None else np.round(m.T_obj_datum, 6).tolist(),
+             "description": m.description}
+    if m.support_surfaces is not None:   # optional field: only fixtures that declare them
+        entry["support_surfaces"] = m.support_surfaces
+    return entry
 
 
 def build(out: Path) -> list[dict]:

@@ -18,8 +18,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--layout", required=True, help="fiducial layout JSON of the table")
     p.add_argument("--model", action="append", default=[], help="a part to locate (STL/OBJ/PLY/GLB/STEP, mm); repeatable")
     p.add_argument("--clamp", action="append", default=[], help="a clamp/vise to locate (mesh file, mm); repeatable")
-    p.add_argument("--library", help="a models_library folder: recognise its workpieces and clamps")
-    p.add_argument("--units", default="mm", choices=["mm", "inch"], help="units of --model/--clamp files")
+    p.add_argument("--support", action="append", default=[],
+                   help="a support (parallel, fixture plate; mesh file, mm, standing as modelled); repeatable")
+    p.add_argument("--library", help="a models_library folder: recognise its workpieces, clamps and supports")
+    p.add_argument("--units", default="mm", choices=["mm", "inch"], help="units of --model/--clamp/--support files")
     p.add_argument("--overlay", help="write the overlay picture to this PNG")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=run)
@@ -30,7 +32,8 @@ def _load_candidates(args) -> tuple[list, bool]:
     from app.vision.localize import Candidate
 
     cands = []
-    for path, kind in [(m, "workpiece") for m in args.model] + [(c, "clamp") for c in args.clamp]:
+    for path, kind in ([(m, "workpiece") for m in args.model] + [(c, "clamp") for c in args.clamp]
+                       + [(s, "support") for s in args.support]):
         p = Path(path)
         cands.append(Candidate(name=p.name, mesh=load_mesh(p.read_bytes(), p.name, args.units), kind=kind))
     recognise = False
@@ -41,10 +44,11 @@ def _load_candidates(args) -> tuple[list, bool]:
 
         lib = Path(args.library)
         for e in load_library_manifest(lib):
-            if e.kind in ("workpiece", "clamp"):
+            if e.kind in ("workpiece", "clamp", "support"):
                 cands.append(Candidate(name=e.key, mesh=load_mesh((lib / e.file).read_bytes(), e.file, e.units),
-                                       kind=e.kind, T_obj_datum=None if e.T_obj_datum is None else np.asarray(e.T_obj_datum)))
-        recognise = not (args.model or args.clamp)
+                                       kind=e.kind, T_obj_datum=None if e.T_obj_datum is None else np.asarray(e.T_obj_datum),
+                                       support_surfaces=e.support_surfaces))
+        recognise = not (args.model or args.clamp or args.support)
     return cands, recognise
 
 

@@ -1,5 +1,5 @@
-"""Parametric models of the example library: a T-slot table with its fiducial layout, a machine vise,
-strap clamps and sample workpieces. Pure geometry (trimesh + shapely + manifold3d booleans), mm.
+"""Parametric models of the example library: a T-slot table with its fiducial layout, machine vises,
+strap clamps, parallels and sample workpieces. Pure geometry (trimesh + shapely + manifold3d booleans), mm.
 
 Every function returns a watertight ``trimesh.Trimesh`` in its own ``obj`` frame (stated in its
 docstring; z up, resting on z = 0 unless said otherwise), so ``models_library/build_library.py``,
@@ -203,6 +203,66 @@ def machine_vise(jaw_width_mm: float = 150.0, opening_mm: float = 80.0, jaw_heig
     return _clean(_difference(body, cutters))
 
 
+def simple_vise(jaw_width_mm: float = 125.0, opening_mm: float = 60.0, jaw_height_mm: float = 40.0,
+                base_height_mm: float = 55.0) -> trimesh.Trimesh:
+    """A simple machine vise: a flat base with tie-down flanges, fixed jaw, moving jaw, spindle block,
+    spindle and handle square, as one mesh.
+
+    Obj frame as :func:`machine_vise`: origin on the fixed jaw's clamping face, at mid jaw width, on
+    the bottom of the base (the plane the vise stands on); x from the fixed jaw towards the moving jaw
+    and spindle, y along the jaws, z up. The clamping faces are at x = 0 and x = ``opening_mm``; the
+    seat (the top of the base between the jaws, where parts or parallels stand) at z =
+    ``base_height_mm``; the jaw tops at z = ``base_height_mm + jaw_height_mm``. See :func:`vise_seat`.
+    """
+    w2, hb = jaw_width_mm / 2, base_height_mm
+    top = hb + jaw_height_mm
+    x_end = opening_mm + 150.0
+    b2 = w2 + 7.5                                                                # base half width
+    parts = [
+        _box((-70, -b2, 0), (x_end, b2, hb)),                                   # base
+        _box((-50, -b2 - 28, 0), (10, b2 + 28, 14)),                            # tie-down flanges
+        _box((-45, -w2, hb), (0, w2, top)),                                     # fixed jaw
+        _box((opening_mm, -w2, hb), (opening_mm + 50, w2, top)),                # moving jaw
+        _box((x_end - 25, -35, hb), (x_end, 35, hb + 25)),                       # spindle block
+        _cyl_x(0, hb + 12, 22, x_end - 1, x_end + 35),                          # spindle
+        _box((x_end + 35, -15, hb), (x_end + 60, 15, hb + 24)),                 # handle square
+    ]
+    body = _union(parts)
+    cutters = [
+        _box((-30, -b2 - 22, -1), (-10, -b2 - 8, 15)),                          # tie-down slots
+        _box((-30, b2 + 8, -1), (-10, b2 + 22, 15)),
+        _box((-5, -w2 - 1, top - 3), (0.5, w2 + 1, top + 1)),                   # jaw plate steps
+        _box((opening_mm - 0.5, -w2 - 1, top - 3), (opening_mm + 5, w2 + 1, top + 1)),
+    ]
+    return _clean(_difference(body, cutters))
+
+
+def vise_seat(opening_mm: float, half_width_mm: float, seat_z_mm: float) -> dict:
+    """The declared support surface of a vise in its obj frame (see :func:`machine_vise` and
+    :func:`simple_vise`): the seat between the clamping faces (x 0 to ``opening_mm``), y within
+    +-``half_width_mm``, at height ``seat_z_mm``. :func:`machine_vise`: the guide ways' top, half width
+    jaw width / 2 - 20, z 70; :func:`simple_vise`: the base top, half the jaw width, z = base height."""
+    w2 = float(half_width_mm)
+    return {"name": "seat", "z_mm": float(seat_z_mm),
+            "outline_xy": [[0.0, -w2], [float(opening_mm), -w2], [float(opening_mm), w2], [0.0, w2]]}
+
+
+def parallel(length_mm: float = 150.0, height_mm: float = 25.0, thickness_mm: float = 8.0) -> trimesh.Trimesh:
+    """One precision parallel (a ground steel bar; they come in pairs): ``length_mm`` along x,
+    ``thickness_mm`` along y, ``height_mm`` along z.
+
+    Obj frame: origin at the centre of the base face, x along the length, z up. Its support surface
+    (:func:`top_face`) is the top face at z = ``height_mm``.
+    """
+    return _clean(_box((-length_mm / 2, -thickness_mm / 2, 0), (length_mm / 2, thickness_mm / 2, height_mm)))
+
+
+def top_face(mesh: trimesh.Trimesh, name: str = "top") -> dict:
+    """The declared support surface of a block-shaped fixture: its bounding box's top face."""
+    (x0, y0, _), (x1, y1, z1) = np.round(mesh.bounds, 6).tolist()
+    return {"name": name, "z_mm": float(z1), "outline_xy": [[x0, y0], [x1, y0], [x1, y1], [x0, y1]]}
+
+
 def strap_clamp(length_mm: float = 150.0, clamp_height_mm: float = 40.0, width_mm: float = 30.0,
                 thickness_mm: float = 18.0, stud_diameter_mm: float = 12.0) -> trimesh.Trimesh:
     """A strap clamp set: strap with a stud slot, heel (step) block, stud, washer and nut.
@@ -313,12 +373,14 @@ class ExampleModel:
     """One model of the example library, built in memory (``models_library/`` holds the same as files)."""
 
     key: str
-    kind: str  # "table" | "clamp" | "workpiece"
+    kind: str  # "table" | "clamp" | "support" | "workpiece"
     name: str
     mesh: trimesh.Trimesh = field(repr=False)
     T_obj_datum: np.ndarray | None = field(repr=False)
     layout: dict | None = field(repr=False)  # fiducial layout (DESIGN format) for the table
     description: str
+    # fixtures: declared support surfaces (model frame, mm; app/geometry/support_surfaces.py); None: not declared
+    support_surfaces: list[dict] | None = field(default=None, repr=False, hash=False)
 
 
 TABLE_KEY = "tslot_table_800x400"
@@ -326,9 +388,12 @@ TABLE_KEY = "tslot_table_800x400"
 
 def example_library() -> list[ExampleModel]:
     """The example library in manifest order: T-slot table (with its marker layout), vise, two strap
-    clamps and four workpieces from 32 mm to 300 mm. Deterministic; about 0.5 s."""
+    clamps, four workpieces from 32 mm to 300 mm, a second (simpler) vise and two parallels (one of
+    each pair). Deterministic; about 0.5 s."""
     spec = TSlotTableSpec()
     vise = machine_vise()
+    vise_s = simple_vise(125.0, 60.0, 40.0, 55.0)
+    par25, par32 = parallel(150.0, 25.0, 8.0), parallel(150.0, 32.0, 8.0)
     clamp_s = strap_clamp(length_mm=125.0, clamp_height_mm=30.0, width_mm=25.0, thickness_mm=16.0,
                           stud_diameter_mm=10.0)
     clamp_l = strap_clamp(length_mm=175.0, clamp_height_mm=50.0, width_mm=32.0, thickness_mm=20.0,
@@ -347,7 +412,9 @@ def example_library() -> list[ExampleModel]:
             "vise_150", "clamp", "Machine vise 150 mm", vise, make_pose(np.eye(3), (0.0, 0.0, 120.0)), None,
             "Machine vise, jaw width 150 mm, opened 80 mm, jaw height 50 mm. Frame: origin on the fixed "
             "jaw's clamping face at mid width on the vise's bottom; x towards the moving jaw, z up. "
-            "Datum: top edge of the fixed jaw face, mid width."),
+            "Datum: top edge of the fixed jaw face, mid width. Support surface: the seat between the jaws "
+            "(top of the guide ways, z 70, x 0 to 80, y -55 to 55).",
+            [vise_seat(80.0, 150.0 / 2 - 20.0, 70.0)]),
         ExampleModel(
             "strap_clamp_125", "clamp", "Strap clamp 125 mm", clamp_s, None, None,
             "Strap clamp set: strap 125 x 25 x 16 mm at 30 mm height, heel block, M10 stud, washer and "
@@ -374,4 +441,19 @@ def example_library() -> list[ExampleModel]:
             "Plate with a rectangular pocket 120 x 80 x 12, a round pocket d60 x 8 with a bore, six holes "
             "d11 and a 20 mm chamfer at the back-right corner. Frame: front-left bottom corner. Datum: "
             "front-left corner of the top face."),
+        ExampleModel(
+            "vise_125", "clamp", "Machine vise 125 mm", vise_s, make_pose(np.eye(3), (0.0, 0.0, 95.0)), None,
+            "Simple machine vise, jaw width 125 mm, opened 60 mm, jaw height 40 mm on a base 55 mm high. "
+            "Frame: origin on the fixed jaw's clamping face at mid width on the vise's bottom; x towards "
+            "the moving jaw, z up. Datum: top edge of the fixed jaw face, mid width. Support surface: the "
+            "seat between the jaws (top of the base, z 55, x 0 to 60, y -62.5 to 62.5).",
+            [vise_seat(60.0, 125.0 / 2, 55.0)]),
+        ExampleModel(
+            "parallel_150x25x8", "support", "Parallel 150 x 25 x 8", par25, None, None,
+            "Precision parallel (one of a pair) 150 long, 25 high, 8 thick. Frame: centre of the base face, "
+            "x along the length, z up. Support surface: the top face (z 25).", [top_face(par25)]),
+        ExampleModel(
+            "parallel_150x32x8", "support", "Parallel 150 x 32 x 8", par32, None, None,
+            "Precision parallel (one of a pair) 150 long, 32 high, 8 thick. Frame: centre of the base face, "
+            "x along the length, z up. Support surface: the top face (z 32).", [top_face(par32)]),
     ]

@@ -34,11 +34,13 @@ function fail(text) { say($("status"), text, "bad"); }
 
 // ------------------------------------------------------------------------------------------- choose
 async function loadParts() {
-  const [wp, cl] = await Promise.all([api("/api/v1/models?kind=workpiece&limit=500"), api("/api/v1/models?kind=clamp&limit=500")]);
+  const [wp, cl, su] = await Promise.all([api("/api/v1/models?kind=workpiece&limit=500"),
+    api("/api/v1/models?kind=clamp&limit=500"), api("/api/v1/models?kind=support&limit=500")]);
   const part = $("part");
   for (const m of wp.data) part.append(el("option", { value: m.id, text: m.name }));
   const clamps = $("clamps");
-  for (const m of cl.data) {
+  // fixtures (vises, clamps, parallels): located first, the part is then searched on what they carry
+  for (const m of [...cl.data, ...su.data]) {
     clamps.append(el("label", { class: "button" }, el("input", { type: "checkbox", value: m.id, class: "clamp" }), " " + m.name));
   }
   $("part-search").addEventListener("input", () => {

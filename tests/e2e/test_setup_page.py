@@ -168,7 +168,7 @@ def test_every_page_is_linked_from_the_start_page(page, service):
     page.goto(service.url + "/library")
     page.wait_for_selector("[data-testid=model-card] img")
     assert page.locator("[data-testid=model-card]").count() >= 5   # the example library
-    page.locator("[data-testid=model-card]", has_text="Machine vise").get_by_role("button", name="3D view").click()
+    page.locator("[data-testid=model-card]", has_text="Machine vise 150 mm").get_by_role("button", name="3D view").click()
     page.wait_for_function("() => document.querySelector('[data-testid=viewer-frame]').src.includes('/viewer/model/')")
     viewer = page.get_by_test_id("viewer-frame").element_handle().content_frame()
     wait_viewer(viewer, table=False)
