@@ -26,7 +26,10 @@ from app.store.models import Capture, Setup, utcnow
 log = logging.getLogger(__name__)
 
 FINAL = ("located", "failed")
-_PREPARED: dict[str, Any] = {}  # glb sha256 -> PreparedModel (a cache; revisions never change)
+LOCATED_KINDS = ("workpiece", "clamp", "support")   # what a setup looks for on the table
+# (glb sha256, kind) -> PreparedModel (a cache; revisions never change). The kind is part of the key:
+# a fixture is prepared standing as modelled only, a workpiece in all its resting states.
+_PREPARED: dict[tuple[str, str], Any] = {}
 
 
 def png_bytes(image: np.ndarray) -> bytes:
@@ -48,8 +51,9 @@ def create_setup(session: Session, files: FileStore, *, machine_id: int, camera_
     models = []
     for mid in model_ids:
         m = library.get_model(session, mid, include_deleted=False)
-        if m.kind not in ("workpiece", "clamp"):
-            raise Invalid(f"model {mid} ({m.name}) is a {m.kind}; only workpieces and clamps are located on the table")
+        if m.kind not in LOCATED_KINDS:
+            raise Invalid(f"model {mid} ({m.name}) is a {m.kind}; only workpieces, clamps and supports are located "
+                          "on the table")
         models.append({"model_id": m.id, "revision": m.current_revision})
     if image is not None and grab:
         raise Invalid("give an image or grab=true, not both")
@@ -112,27 +116,29 @@ def _append_stage(ctx: JobContext, setup_id: int, record: dict) -> None:
 
 
 def _candidates(session: Session, files: FileStore, model_refs: list[dict]) -> list:
-    """Library models to look for: the ones asked for, else every workpiece and clamp (recognition)."""
+    """Library models to look for: the ones asked for, else every workpiece, clamp and support
+    (recognition). Fixtures carry their declared support surfaces (None: derived from the mesh)."""
     from app.geometry.mesh import load_mesh
     from app.vision.localize import Candidate
 
     if not model_refs:
         rows, _ = library.list_models(session, limit=500)
         model_refs = [{"model_id": m.id, "revision": m.current_revision} for m in rows
-                      if m.kind in ("workpiece", "clamp")]
+                      if m.kind in LOCATED_KINDS]
     out = []
     for ref in model_refs:
         m = library.get_model(session, ref["model_id"])
         rev = library.get_revision(session, m.id, ref["revision"])
         # Prepared edge models cost ~1 s each: keep them per geometry file (immutable, content-addressed).
-        prepared = _PREPARED.get(rev.glb_sha256)
+        prepared = _PREPARED.get((rev.glb_sha256, m.kind))
         mesh = prepared.mesh if prepared is not None else load_mesh(files.read(rev.glb_sha256), "model.glb", "mm")
         cand = Candidate(name=m.name, mesh=mesh, kind=m.kind, model_id=m.id, revision=rev.revision,
-                         T_obj_datum=np.asarray(rev.T_obj_datum) if rev.T_obj_datum else None)
+                         T_obj_datum=np.asarray(rev.T_obj_datum) if rev.T_obj_datum else None,
+                         support_surfaces=rev.support_surfaces)
         if prepared is not None and prepared.name == m.name:
             cand.prepared = prepared
         else:
-            _PREPARED[rev.glb_sha256] = cand.prepare()
+            _PREPARED[(rev.glb_sha256, m.kind)] = cand.prepare()
         out.append(cand)
     return out
 
@@ -166,8 +172,10 @@ def run_setup_job(ctx: JobContext, setup_id: int) -> None:
         _append_stage(ctx, setup_id, rec)
 
     try:
+        # models asked for: the support chain (fixtures first, the part on their surfaces or over risers);
+        # recognition picks among the whole library and keeps the plain search
         result = localize(image, np.asarray(intr["K"]), np.asarray(intr["dist"]), layout, candidates,
-                          recognise=recognise, on_stage=on_stage, table_model=table)
+                          recognise=recognise, on_stage=on_stage, table_model=table, chain=not recognise)
     except Exception as exc:  # noqa: BLE001 - a crash must end the job as failed, with a reason
         log.exception("setup crashed", extra={"setup_id": setup_id})
         _update(ctx, setup_id, status="failed", reason=f"internal error in localisation ({exc.__class__.__name__}); "
