@@ -28,6 +28,8 @@ FIXTURE_KINDS = ("clamp", "support")
 # Fixtures are often half hidden by the part they hold (jaws, parallels under it): they are accepted
 # at a lower share of supported edges than a workpiece, with the same margin and distinctiveness.
 FIXTURE_MIN_SCORE = 0.35
+# A fixture stands on a ground base, bolted down: its contact is much tighter than a part's.
+FIXTURE_CONTACT = {"contact_sigma_mm": 0.05, "contact_sigma_deg": 0.05}
 
 # BGR colours per object, in order (workpiece first): distinct on grey metal.
 COLOURS = [(0, 220, 0), (255, 160, 0), (0, 200, 255), (255, 0, 255), (255, 255, 0), (80, 80, 255)]
@@ -240,7 +242,13 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
 
     located: list[tuple[Candidate, Any]] = []
     not_found: list[dict] = []
-    surfaces = [table_surface()]
+    surfaces = [table_surface()]         # where workpieces may rest (declared surfaces where given)
+    seats = [table_surface()]            # where fixtures may stand (every upward face: a jaw rides a rail)
+    # everything in the chain stands on the table: search its top, not the floor around it
+    table_xy = None
+    if known:
+        b = known[0][0].mesh.bounds
+        table_xy = (float(b[0, 0]), float(b[1, 0]), float(b[0, 1]), float(b[1, 1]))
     fixtures = sorted([c for c in ordered if c.kind in FIXTURE_KINDS], key=lambda c: -float(np.linalg.norm(c.mesh.extents)))
     parts = [c for c in ordered if c.kind not in FIXTURE_KINDS]
     for cand in fixtures + parts:
@@ -250,22 +258,26 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
         occ = [(c.prepare(), p.T_table_obj) for c, p in located]
         kn = tuple(known) + tuple((c.prepare(), p.T_table_obj) for c, p in located)
         radius = 0.5 * model.diameter_mm
-        if fixture:     # a fixture stands directly on a surface found so far
-            planes = search_planes(surfaces, radius, table_risers=(0.0,), fixture_risers=(0.0,))
+        if fixture:     # a fixture stands directly on a face found so far
+            planes = search_planes(seats, radius, table_risers=(0.0,), fixture_risers=(0.0,))
         else:
             planes = search_planes(surfaces, radius)
         pose = object_pose.locate_object(image, K, dist, T_cam_table, model, occluder_models=occ,
+                                         table_extent_xy=table_xy,
                                          min_score=FIXTURE_MIN_SCORE if fixture else min_score,
                                          min_margin=min_margin, height_offsets_mm=tuple(planes),
                                          free_height=not fixture, known_models=kn, known_regions=labels,
-                                         known_heights_mm=tuple(s.height_mm for s in surfaces))
+                                         known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
+                                         **(FIXTURE_CONTACT if fixture else {}))
         chain_text = ""
         if pose:
-            carrier = _carrier(surfaces, pose, cand)
+            carrier = _carrier(seats if fixture else surfaces, pose, cand)
             pose = dataclasses.replace(pose, chain=carrier)
             chain_text = "rests on " + " on ".join(carrier)
             if fixture:
-                surfaces += (support_surfaces(cand.mesh, pose.T_table_obj, cand.name) if cand.support_surfaces is None
+                derived = support_surfaces(cand.mesh, pose.T_table_obj, cand.name)
+                seats += derived
+                surfaces += (derived if cand.support_surfaces is None
                              else declared_surfaces(cand.support_surfaces, pose.T_table_obj, cand.name))
         _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table,
                 chain_text)

@@ -477,6 +477,12 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     round_part = (model.continuous_axis_obj is not None and
                   abs((rs.T_rest_obj[:3, :3] @ model.continuous_axis_obj)[2]) > 0.999)
 
+    def face_normals(sel):
+        """Normals (resting frame) of the faces either side of the samples' edges; a boundary edge
+        repeats its one face."""
+        ef_s = model.edge_faces[model.sample_edge[sel]]
+        return N[ef_s[:, 0]], N[np.where(ef_s[:, 1] >= 0, ef_s[:, 1], ef_s[:, 0])]
+
     def template(spacing_mm, max_n):
         step = max(1, int(round(spacing_mm / model.sample_step_mm)))
         sel = cand[::step]
@@ -527,6 +533,8 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         FK = sfft.rfft2(ker[used], s=(Py, Px), workers=-1)
         corr = sfft.irfft2(np.einsum("kij,kij->ij", FS[used], np.conj(FK)), s=(Py, Px), workers=-1)
         score[it] = np.roll(corr, (Rk, Rk), axis=(0, 1))[:ny, :nx]
+    if cache is not None and "debug_coarse" in cache:      # diagnostics: the coarse score volume
+        cache["debug_coarse"].append((state, height_mm, score.copy(), (x0, y0, b, dth)))
     flat = score.ravel()
     k = min(len(flat), 20 * n_coarse)
     top = np.argpartition(-flat, k - 1)[:k]
@@ -553,7 +561,8 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         ay = np.concatenate([cy, y0 + iy2 * b])
         at = np.concatenate([cth, it2[good] * dth])
         _, _, _, w_w, w_sel = template(max(3.0 * px_mm, diam / 60.0), 80)
-        wide = image_score_wide(ax, ay, at, P[w_sel] + np.array([0.0, 0.0, height_mm]), D[w_sel], w_w)
+        wide = image_score_wide(ax, ay, at, P[w_sel] + np.array([0.0, 0.0, height_mm]), D[w_sel], w_w,
+                                normals=face_normals(w_sel))
         order = np.argsort(-wide)
         keep = _nms(ax[order], ay[order], at[order], 1.5 * b, 1.5 * dth, n_coarse)
         cx, cy, cth = ax[order][keep], ay[order][keep], at[order][keep]
@@ -562,6 +571,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     _, _, _, f_w, f_sel = template(max(2.0 * px_mm, diam / 100.0), 120)
     f_P = P[f_sel] + np.array([0.0, 0.0, height_mm])
     f_D = D[f_sel]
+    f_N = face_normals(f_sel)
     hx, hy, ht = cx, cy, cth
     # each step's scorer reaches about as far as the step is coarse (a 2 px scorer cannot see a part
     # half a coarse cell away); every coarse cell keeps its best refinement, so a big part whose
@@ -575,7 +585,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         hx = (hx[:, None] + DX.ravel()[None, :]).ravel()
         hy = (hy[:, None] + DY.ravel()[None, :]).ravel()
         ht = (ht[:, None] + DT.ravel()[None, :]).ravel()
-        fscore = image_score(hx, hy, ht, f_P, f_D, f_w)
+        fscore = image_score(hx, hy, ht, f_P, f_D, f_w, normals=f_N)
         best_of_cell = np.arange(len(hx) // nb) * nb + np.argmax(fscore.reshape(-1, nb), axis=1)
         order = best_of_cell[np.argsort(-fscore[best_of_cell])]
         hx, hy, ht, fscore = hx[order], hy[order], ht[order], fscore[order]
@@ -596,11 +606,23 @@ def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, ma
     t = T_cam_table[:3, 3]
     cos_tol = np.cos(np.radians(max_angle_deg))
 
-    def score(hx, hy, ht, P, D, w):
+    C = -R.T @ t                                  # camera centre, table frame
+
+    def score(hx, hy, ht, P, D, w, normals=None):
         c, s = np.cos(ht)[:, None], np.sin(ht)[:, None]
         X = np.stack([hx[:, None] + c * P[None, :, 0] - s * P[None, :, 1],
                       hy[:, None] + s * P[None, :, 0] + c * P[None, :, 1],
                       np.broadcast_to(P[None, :, 2], (len(hx), len(P)))], axis=-1).reshape(-1, 3)
+        vis = None
+        if normals is not None:
+            # an edge shows only if one of its faces turns towards the camera (back edges of the
+            # part never do; counting them drowns the true pose among clutter that fits by chance)
+            V = (C[None, :] - X).reshape(len(hx), len(P), 3)
+            vis = np.zeros((len(hx), len(P)), bool)
+            for Nk in normals:
+                nx = c * Nk[None, :, 0] - s * Nk[None, :, 1]
+                ny = s * Nk[None, :, 0] + c * Nk[None, :, 1]
+                vis |= (nx * V[..., 0] + ny * V[..., 1] + Nk[None, :, 2] * V[..., 2]) > 0
         Dt = np.stack([c * D[None, :, 0] - s * D[None, :, 1], s * D[None, :, 0] + c * D[None, :, 1],
                        np.broadcast_to(D[None, :, 2], (len(hx), len(P)))], axis=-1).reshape(-1, 3)
         Xc = X @ R.T + t
@@ -616,8 +638,12 @@ def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, ma
         tn = np.linalg.norm(tv, axis=1) + 1e-12
         # the image gradient is perpendicular to the edge: |sin(angle between gradient and edge)|
         compat = np.abs(np.cos(a) * tv[:, 1] - np.sin(a) * tv[:, 0]) / tn >= cos_tol
-        val = np.clip(1.0 - d / tau_px, 0.0, 1.0) * compat * ok
-        return val.reshape(len(hx), len(P)) @ w / max(float(w.sum()), 1e-9)
+        val = (np.clip(1.0 - d / tau_px, 0.0, 1.0) * compat * ok).reshape(len(hx), len(P))
+        if vis is None:
+            return val @ w / max(float(w.sum()), 1e-9)
+        # share of the visible weight, but never of less than half the template (a pose that hides
+        # most of the part would otherwise score on its few edges left)
+        return (val * vis) @ w / np.maximum(vis @ w, 0.5 * float(w.sum()) + 1e-9)
 
     return score
 
@@ -963,12 +989,15 @@ def _same_up_to_symmetry(model: PreparedModel, T1, T2, pos_tol, ang_tol, exact_o
 
 def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, height_offsets_mm=(0.0,),
             resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10, max_edges: int = 60000, rng=None,
-            timings: dict | None = None):
+            timings: dict | None = None, table_extent_xy=None):
     """Stages 1 and 2: starts from the plane search, aligned in the table plane, best first.
+    ``table_extent_xy`` (x0, x1, y0, y1 mm): where the part's centre can be (the table and a margin);
+    the floor and the machine's walls in the background are not searched.
     Returns (hypotheses, px_per_mm) or the reason (str) why there are none."""
     timings = {} if timings is None else timings
     memo = ("search", id(model), T_cam_table.tobytes(), tuple(height_offsets_mm),
-            None if resting_states is None else tuple(resting_states), min_state_probability, n_starts, n_planar)
+            None if resting_states is None else tuple(resting_states), min_state_probability, n_starts, n_planar,
+            None if table_extent_xy is None else tuple(table_extent_xy))
     if memo in eimg.cache:              # same image, model and table pose: reuse (recognition)
         timings.setdefault("search", 0.0)
         timings.setdefault("planar_fit", 0.0)
@@ -994,6 +1023,9 @@ def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, heig
     lo_xy = np.maximum(np.percentile(pts, 1, axis=0), C[:2] - 3000.0) - 150.0
     hi_xy = np.minimum(np.percentile(pts, 99, axis=0), C[:2] + 3000.0) + 150.0
     extent = (float(lo_xy[0]), float(hi_xy[0]), float(lo_xy[1]), float(hi_xy[1]))
+    if table_extent_xy is not None:
+        t0, t1, t2, t3 = table_extent_xy
+        extent = (max(extent[0], t0), min(extent[1], t1), max(extent[2], t2), min(extent[3], t3))
     if extent[1] <= extent[0] or extent[3] <= extent[2]:
         return "the image's edges meet the table plane only more than 3 m from the camera"
     if resting_states is None:
@@ -1186,7 +1218,8 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
                   n_starts: int = 6, n_planar: int = 10, n_refine: int = 3, max_edges: int = 60000,
                   edge_image: EdgeImage | None = None, sigma_scale: float = SIGMA_SCALE, seed: int = 0,
                   start_poses=None, known_heights_mm=None, contact_sigma_mm: float = CONTACT_SIGMA_MM,
-                  contact_sigma_deg: float = CONTACT_SIGMA_DEG, riser_sigma_mm: float = RISER_SIGMA_MM):
+                  contact_sigma_deg: float = CONTACT_SIGMA_DEG, riser_sigma_mm: float = RISER_SIGMA_MM,
+                  table_extent_xy=None):
     """Locate one part on the table. Returns :class:`ObjectPose` or :class:`ObjectFailure`.
 
     ``start_poses``: optional ``T_table_obj`` starts (e.g. an operator's adjusted pose, "refine from
@@ -1228,6 +1261,8 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     known_heights_mm : heights (table z) of surfaces known to carry parts (the table, located
         fixtures' faces); a start searched at another height (a riser of unknown height) has its
         height fitted (``free_height``) and only a broad prior on it. None: every searched height.
+    table_extent_xy : (x0, x1, y0, y1) of the table top (mm, table frame): the part's centre is
+        searched within it, grown by half the part's size; None: wherever image edges meet the plane
     contact_sigma_mm, contact_sigma_deg : how far a part resting on a known surface may sit above
         it or tilt (a chip, a burr, a strap pressing one side): the prior of the final fit;
         ``riser_sigma_mm`` the prior on the height above an unknown riser.
@@ -1274,7 +1309,10 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     else:
         found = _search(eimg, K, dist, T_cam_table, model, height_offsets_mm=height_offsets_mm,
                         resting_states=resting_states, n_starts=n_starts, n_planar=n_planar,
-                        max_edges=max_edges, rng=rng, timings=timings)
+                        max_edges=max_edges, rng=rng, timings=timings,
+                        table_extent_xy=None if table_extent_xy is None else
+                        (table_extent_xy[0] - 0.5 * model.diameter_mm, table_extent_xy[1] + 0.5 * model.diameter_mm,
+                         table_extent_xy[2] - 0.5 * model.diameter_mm, table_extent_xy[3] + 0.5 * model.diameter_mm))
     if isinstance(found, str):
         return fail("not_found", f"{name} not found: {found}")
     hyps, px_per_mm = found
@@ -1394,6 +1432,12 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     runner = max((r["score"] for r in others), default=float("nan"))
     margin = best["score"] - runner if others else float("nan")
     rivals = [r for r in others if r["support_px"] >= 0.8 * best["support_px"]]
+    if rivals and "sol" in best["info"]:
+        # nor is a pose that leaves clearly more of the image inside its outline unexplained (the
+        # block upside down: same outline, its pocket's edges in the picture belong to nothing)
+        u_best = _unexplained_edges(eimg, model, T_cam_table @ best["T"], K, dist)
+        rivals = [r for r in rivals
+                  if _unexplained_edges(eimg, model, T_cam_table @ r["T"], K, dist) < u_best + 0.1]
     rival_margin = best["score"] - max((r["score"] for r in rivals), default=float("nan"))
     if "sol" not in best["info"]:
         timings["verify"] = (time.perf_counter() - t) * 1e3
@@ -1457,15 +1501,31 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     flip_runner = max((r["score"] for r in flips), default=float("nan"))
     flips_open = [r for r in flips if best["score"] - r["score"] < 2 * min_margin]
 
-    # residual tilt: free 6-DoF fit from the flat result
+    # residual tilt: free 6-DoF fit from the flat result, with the contact prior
+    def fit6(r):
+        ra_ = None if model.continuous_axis_obj is None else r["T"][:3, :3] @ model.continuous_axis_obj
+        pr = (r["T"], contact_sigma_mm if on_known_surface(r["T"]) else riser_sigma_mm,
+              np.radians(contact_sigma_deg), model.center_obj)
+        T6_, info6_ = _refine(eimg, model, r["T"], T_cam_table, K, dist, occluders_cam, sub_fine,
+                              free=FREE_6DOF, radii=(2.0, 2.0), min_contrast=min_contrast, round_axis_table=ra_,
+                              prior=pr)
+        conflict = "sol" in info6_ and np.max(np.abs(_prior_offsets(T6_, pr))) > MAX_PRIOR_SIGMAS
+        return T6_, info6_, pr, conflict
+
+    T6, info6, prior, conflict6 = fit6(best)
+    if conflict6:
+        # the best flat fit does not rest where it says (e.g. on a vise's seat where the part in fact
+        # stands 20 mm higher on parallels and, seen from afar, looks nearly the same): a rival of
+        # about the same score that does rest as it says is the better reading
+        for r in sorted(results, key=lambda r: -r["key"]):
+            if r is best or "sol" not in r["info"] or r["score"] < best["score"] - min_margin:
+                continue
+            alt = fit6(r)
+            if "sol" in alt[1] and not alt[3]:
+                best = r
+                T6, info6, prior, conflict6 = alt
+                break
     st = best["state"]
-    ra = None if model.continuous_axis_obj is None else best["T"][:3, :3] @ model.continuous_axis_obj
-    known_surface = on_known_surface(best["T"])
-    prior = (best["T"], contact_sigma_mm if known_surface else riser_sigma_mm, np.radians(contact_sigma_deg),
-             model.center_obj)
-    T6, info6 = _refine(eimg, model, best["T"], T_cam_table, K, dist, occluders_cam, sub_fine,
-                        free=FREE_6DOF, radii=(2.0, 2.0), min_contrast=min_contrast, round_axis_table=ra,
-                        prior=prior)
     n_rest = inv(model.resting_states[st].T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0])
     up = T6[:3, :3] @ n_rest
     tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
@@ -1481,7 +1541,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     # the image wins. Its covariance is the posterior, so the stated sigma covers all six axes.
     T_table_obj, info = (T6, info6) if "sol" in info6 else (best["T"], best["info"])
     contact_conflict = False
-    if "sol" in info6 and np.max(np.abs(_prior_offsets(T6, prior))) > MAX_PRIOR_SIGMAS:
+    if conflict6:
         # the image pulls the part far off the surface it should rest on (or tilts it by degrees):
         # either it does not rest as assumed or the fit is caught on other edges; keep the flat
         # pose and say that its height and tilt are not known
