@@ -72,7 +72,7 @@ def run_scene(entry: dict, method: str) -> dict:
         res, err = None, f"{type(e).__name__}: {e}"
     ms = (time.perf_counter() - t) * 1e3
     row = {"scene": entry["scene_id"], "mode": entry["fixture_mode"], "workpiece": entry["workpiece"],
-           "half": 0 if entry["index"] < 20 else 1, "ms": ms, "markers_seen": len(sc.gt["visible_marker_ids"]),
+           "half": 0 if entry["index"] < 20 else 1, "pair": entry.get("pair"), "ms": ms, "markers_seen": len(sc.gt["visible_marker_ids"]),
            "visible_fraction": float(wp["visible_fraction"]), "crash": err}
     obj = None if res is None else next((o for o in res.objects if o["kind"] == "workpiece"), None)
     row["located"] = obj is not None
@@ -85,6 +85,7 @@ def run_scene(entry: dict, method: str) -> dict:
         errs = [pose_error_6dof(T, np.asarray(wp["T_table_object"]), prepared) for T in listed]
         e = min(errs, key=lambda e: np.linalg.norm(e[:3]) + 10 * np.linalg.norm(np.nan_to_num(e[3:])))
         row.update(err=[float(v) for v in e], sigma=obj["sigma"], score=obj["score"], chain=obj.get("chain"),
+                   T_table_obj=obj["T_table_obj"],
                    cov6=obj.get("cov6"), pass_=obj.get("uncertainty_ok"))
     return row
 
@@ -154,6 +155,30 @@ def report(results: dict[str, list[dict]]) -> str:
     return "\n".join(lines)
 
 
+def two_view(rows: list[dict]) -> str:
+    """The ``moved`` pairs (same setup, two camera poses): both located? their difference in x, y,
+    z (mm) and rx, ry, rz (deg) against the combined stated sigma (agree: every axis within 2)."""
+    from scipy.spatial.transform import Rotation
+
+    keys = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
+    lines = ["| pair | mode | both located | difference x, y, z mm / rx, ry, rz deg | in combined sigma | agree (2 sigma) |",
+             "|---|---|---|---|---|---|"]
+    for p in sorted({r["pair"] for r in rows if r.get("pair") is not None}):
+        a, b = sorted((r for r in rows if r.get("pair") == p), key=lambda r: r["scene"])
+        if not (a["located"] and b["located"]):
+            lines.append(f"| {p} | {a['mode']} | no ({a['located']}, {b['located']}) | - | - | - |")
+            continue
+        Ta, Tb = np.asarray(a["T_table_obj"]), np.asarray(b["T_table_obj"])
+        d = np.concatenate([Ta[:3, 3] - Tb[:3, 3],
+                            np.degrees(Rotation.from_matrix(Ta[:3, :3] @ Tb[:3, :3].T).as_rotvec())])
+        sc = np.array([np.hypot(a["sigma"].get(k) or np.nan, b["sigma"].get(k) or np.nan) for k in keys])
+        ratio = np.abs(d) / sc
+        agree = bool(np.all(np.nan_to_num(ratio, nan=np.inf) <= 2.0))
+        lines.append(f"| {p} | {a['mode']} | yes | {', '.join(f'{v:.2f}' for v in d[:3])} / "
+                     f"{', '.join(f'{v:.3f}' for v in d[3:])} | {', '.join(f'{v:.1f}' for v in ratio)} | {agree} |")
+    return "\n".join(lines)
+
+
 def _job(args):
     entry, method = args
     return method, run_scene(entry, method)
@@ -166,18 +191,23 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="var/devset")
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--family", default="setup", choices=("setup", "moved"),
+                    help="moved: the two-view pairs (reports their agreement)")
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     methods = a.methods.split(",")
-    todo = [e for e in scenes() if not a.scenes or e["scene_id"] in a.scenes.split(",")]
+    todo = [e for e in scenes(a.family) if not a.scenes or e["scene_id"] in a.scenes.split(",")]
+    if a.family == "moved":
+        methods = [f"{m}_moved" for m in methods]
     results: dict[str, list[dict]] = {}
     if not a.report_only:
         os.environ.setdefault("OMP_NUM_THREADS", "1")
-        jobs = [(e, m) for m in methods for e in todo]
+        jobs = [(e, m.removesuffix("_moved")) for m in methods for e in todo]
         done: dict[str, list[dict]] = {m: [] for m in methods}
         with ProcessPoolExecutor(a.jobs) as ex:
             for method, row in ex.map(_job, jobs):
+                method = method + ("_moved" if a.family == "moved" else "")
                 done[method].append(row)
                 print(f"{method:9s} {row['scene']} {row['mode']:9s} located={row['located']} "
                       f"err={np.round(row.get('err', []), 3).tolist()} {row['ms'] / 1e3:.1f}s {row['reason'][:160]}",
@@ -190,6 +220,9 @@ def main(argv=None) -> int:
         if (out / f"{m}.json").exists():
             results[m] = json.loads((out / f"{m}.json").read_text())
     print(report(results))
+    for m, rows in results.items():
+        if m.endswith("_moved"):
+            print(f"\n{m}:\n" + two_view(rows))
     return 0
 
 

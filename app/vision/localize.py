@@ -270,6 +270,16 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
                                          known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
                                          **(FIXTURE_CONTACT if fixture else {}))
         chain_text = ""
+        if pose and fixture:
+            carrier = _carrier(seats, pose, cand)
+            if carrier[0].startswith("an unknown support"):
+                # a fixture stands on the table or on a located fixture, never on something unseen:
+                # a fit that floats is a plain box matched to other edges (a jaw without its vise)
+                pose = object_pose.ObjectFailure(
+                    model_name=cand.name, kind="not_found",
+                    reason=f"{cand.name} not found: the best fit ({pose.score:.0%} of its edges) would stand on "
+                           f"{carrier[0]}, not on the table or a located fixture",
+                    best_score=pose.score, candidates=(), timings_ms=dict(pose.timings_ms))
         if pose:
             carrier = _carrier(seats if fixture else surfaces, pose, cand)
             pose = dataclasses.replace(pose, chain=carrier)

@@ -1385,7 +1385,8 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     # (the flip moves the part by a few mm when its outline is not centred on its mass: aligned in the
     # plane first). Explaining clearly more of the image (25 % more supported edge length) at an
     # acceptable score wins even at a lower share: the pocket's walls are rarely all supported.
-    if "sol" in best["info"]:
+    upright_only = len(model.resting_states) == 1 and model.resting_states[0].cad_axis == "+z"
+    if "sol" in best["info"] and not upright_only:      # a fixture never lies upside down
         for T_alt in _turned_over(model, best["T"]):
             found_alt = _start_hypotheses(model, [T_alt], T_cam_table, K, dist, eimg,
                                           capture_mm=max(5.0, 0.06 * model.diameter_mm), capture_deg=2.0, n_peaks=1)
