@@ -57,10 +57,14 @@ def run_scene(entry: dict, method: str) -> dict:
     from app.vision.localize import Candidate, localize
     from app.vision.pose_errors import pose_error_6dof
 
-    sc = devset_scene(DEVSET, entry)
-    image = cv2.imread(str(DEVSET / entry["image"]), cv2.IMREAD_UNCHANGED)
+    if entry.get("source") == "synth":
+        sc, image = _synth_cached(entry)
+    else:
+        sc = devset_scene(DEVSET, entry)
+        image = cv2.imread(str(DEVSET / entry["image"]), cv2.IMREAD_UNCHANGED)
     wp = sc.workpiece
-    cands = [Candidate(wp["name"], trimesh.load(DEVSET / wp["mesh"], force="mesh"), kind="workpiece")]
+    mesh = wp["mesh_obj"] if "mesh_obj" in wp else trimesh.load(DEVSET / wp["mesh"], force="mesh")
+    cands = [Candidate(wp["name"], mesh, kind="workpiece")]
     if method == "engine":
         cands += sc.fixture_candidates
     kw = {"height_offsets_mm": (0.0,)} if method == "baseline" else {"chain": True}
@@ -88,6 +92,24 @@ def run_scene(entry: dict, method: str) -> dict:
                    T_table_obj=obj["T_table_obj"],
                    cov6=obj.get("cov6"), pass_=obj.get("uncertainty_ok"))
     return row
+
+
+SYNTH_CACHE = Path(os.environ.get("SETUPCAM_SYNTH_CACHE", Path.home() / ".cache" / "setupcam" / "synth_fixtures"))
+
+
+def _synth_cached(entry: dict):
+    """A generated scene (app.synth.fixtures), rendered once and kept in SYNTH_CACHE."""
+    import pickle
+
+    from app.synth.fixtures import synth_scene
+
+    f = SYNTH_CACHE / f"{entry['scene_id']}.pkl"
+    if f.exists():
+        return pickle.loads(f.read_bytes())
+    out = synth_scene(entry)
+    f.parent.mkdir(parents=True, exist_ok=True)
+    f.write_bytes(pickle.dumps(out))
+    return out
 
 
 def _summary(rows: list[dict]) -> dict:
@@ -191,23 +213,30 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="var/devset")
     ap.add_argument("--report-only", action="store_true")
-    ap.add_argument("--family", default="setup", choices=("setup", "moved"),
-                    help="moved: the two-view pairs (reports their agreement)")
+    ap.add_argument("--family", default="setup", choices=("setup", "moved", "synth"),
+                    help="moved: the devset's two-view pairs (reports their agreement); synth: our own "
+                         "generator's table / vise / parallels scenes (app.synth.fixtures)")
+    ap.add_argument("--n-synth", type=int, default=24)
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     methods = a.methods.split(",")
-    todo = [e for e in scenes(a.family) if not a.scenes or e["scene_id"] in a.scenes.split(",")]
-    if a.family == "moved":
-        methods = [f"{m}_moved" for m in methods]
+    if a.family == "synth":
+        from app.synth.fixtures import synth_entry
+        pool = [synth_entry(k) for k in range(a.n_synth)]
+    else:
+        pool = scenes(a.family)
+    todo = [e for e in pool if not a.scenes or e["scene_id"] in a.scenes.split(",")]
+    if a.family != "setup":
+        methods = [f"{m}_{a.family}" for m in methods]
     results: dict[str, list[dict]] = {}
     if not a.report_only:
         os.environ.setdefault("OMP_NUM_THREADS", "1")
-        jobs = [(e, m.removesuffix("_moved")) for m in methods for e in todo]
+        jobs = [(e, m.split("_")[0]) for m in methods for e in todo]
         done: dict[str, list[dict]] = {m: [] for m in methods}
         with ProcessPoolExecutor(a.jobs) as ex:
             for method, row in ex.map(_job, jobs):
-                method = method + ("_moved" if a.family == "moved" else "")
+                method = method + ("" if a.family == "setup" else f"_{a.family}")
                 done[method].append(row)
                 print(f"{method:9s} {row['scene']} {row['mode']:9s} located={row['located']} "
                       f"err={np.round(row.get('err', []), 3).tolist()} {row['ms'] / 1e3:.1f}s {row['reason'][:160]}",
@@ -216,7 +245,7 @@ def main(argv=None) -> int:
             old = {r["scene"]: r for r in (json.loads((out / f"{m}.json").read_text()) if (out / f"{m}.json").exists() else [])}
             old.update({r["scene"]: r for r in rows})
             (out / f"{m}.json").write_text(json.dumps(sorted(old.values(), key=lambda r: r["scene"]), indent=1))
-    for m in methods:
+    for m in ("baseline", "engine", "baseline_synth", "engine_synth", "baseline_moved", "engine_moved"):
         if (out / f"{m}.json").exists():
             results[m] = json.loads((out / f"{m}.json").read_text())
     print(report(results))

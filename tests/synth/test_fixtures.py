@@ -1,0 +1,69 @@
+"""Generated setups are physically possible: the part stands on the parallels, the parallels on the
+vise's seat or the table, and nothing passes through anything else."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from app.geometry import parts
+from app.geometry.transforms import transform_points
+from app.synth.fixtures import in_vise, on_parallels, synth_entry
+
+
+@pytest.fixture(scope="module")
+def lib():
+    return {m.key: m for m in parts.example_library()}
+
+
+def _zrange(obj):
+    z = transform_points(obj.T_table_obj, obj.mesh.vertices)[:, 2]
+    return float(z.min()), float(z.max())
+
+
+def _overlap_volume(a, b) -> float:
+    ma, mb = a.mesh.copy(), b.mesh.copy()
+    ma.apply_transform(a.T_table_obj)
+    mb.apply_transform(b.T_table_obj)
+    try:
+        inter = trimesh.boolean.intersection([ma, mb], engine="manifold")
+    except Exception:  # noqa: BLE001 - no overlap can also come back as an error
+        return 0.0
+    return float(abs(inter.volume)) if len(inter.faces) else 0.0
+
+
+def test_part_on_parallels_rests_on_their_tops(lib):
+    rng = np.random.default_rng(1)
+    wp, par = lib["bracket_140"], lib["parallel_150x25x8"]
+    objs = on_parallels(rng, wp.key, wp.mesh, par.mesh, par.key, 400.0, 200.0)
+    part, p0, p1 = objs
+    assert _zrange(part)[0] == pytest.approx(25.0, abs=1e-6)
+    for p in (p0, p1):
+        assert _zrange(p) == pytest.approx((0.0, 25.0), abs=1e-6)
+        assert _overlap_volume(part, p) < 1.0
+
+
+def test_part_in_the_vise_stands_on_parallels_on_the_seat_between_the_jaws(lib):
+    rng = np.random.default_rng(2)
+    wp, v, par = lib["pin_block_32"], lib["vise_150"], lib["parallel_150x25x8"]
+    seat = v.support_surfaces[0]
+    objs = in_vise(rng, wp.key, wp.mesh, v.mesh, v.key, seat, par.mesh, par.key, 400.0, 200.0)
+    part, vise, *pars = objs
+    assert _zrange(part)[0] == pytest.approx(seat["z_mm"] + 25.0, abs=1e-6)
+    for p in pars:
+        assert _zrange(p)[0] == pytest.approx(seat["z_mm"], abs=1e-6)
+        assert _overlap_volume(p, vise) < 1.0
+    assert _overlap_volume(part, vise) < 1.0
+
+
+def test_a_part_wider_than_the_opening_does_not_go_into_the_vise(lib):
+    rng = np.random.default_rng(3)
+    wp, v, par = lib["base_plate_300"], lib["vise_150"], lib["parallel_150x25x8"]
+    assert in_vise(rng, wp.key, wp.mesh, v.mesh, v.key, v.support_surfaces[0], par.mesh, par.key, 400, 200) is None
+
+
+def test_the_generated_set_cycles_modes_and_parts():
+    modes = [synth_entry(k)["fixture_mode"] for k in range(6)]
+    assert modes == ["table", "vise", "parallels"] * 2
+    assert len({synth_entry(k)["workpiece"] for k in range(12)}) == 4
