@@ -75,7 +75,14 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         print(f"setupcam localize: {exc}", file=sys.stderr)
         return 2
-    result = localize(image, cam.K_array, cam.dist_array, layout, candidates, recognise=recognise, table_model=table)
+    try:
+        # named models: the support chain (fixtures first, the part on their surfaces or over risers)
+        result = localize(image, cam.K_array, cam.dist_array, layout, candidates, recognise=recognise,
+                          table_model=table, chain=not recognise)
+    except Exception as exc:  # noqa: BLE001 - an engine bug must still end with a sentence, not a traceback
+        print(f"setupcam localize: internal error in localisation ({exc.__class__.__name__}: {exc}); "
+              "please report it with the image", file=sys.stderr)
+        return 3
     if args.overlay:
         cv2.imwrite(args.overlay, result.overlay)
     if args.json:
@@ -84,5 +91,6 @@ def run(args: argparse.Namespace) -> int:
         print(result.reason or "located")
         for o in result.objects:
             T = o["T_table_obj"]
-            print(f"  {o['name']}: x {T[0][3]:.3f} mm, y {T[1][3]:.3f} mm, z {T[2][3]:.3f} mm, score {o['score']:.2f}")
+            print(f"  {o['name']}: x {T[0][3]:.3f} mm, y {T[1][3]:.3f} mm, z {T[2][3]:.3f} mm, score {o['score']:.2f}"
+                  + (f"; rests on {' on '.join(o['chain'])}" if o.get("chain") else ""))
     return 0 if result.ok else 1

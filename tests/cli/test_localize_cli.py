@@ -34,7 +34,7 @@ def test_localize_cli_finds_the_part(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and out["ok"], out["reason"]
     (obj,) = out["objects"]
-    assert obj["name"] == part.name
+    assert obj["name"] == part.name and obj["chain"] == ["table"]          # the support chain ran
     T = np.array(obj["T_table_obj"])
     assert np.linalg.norm(T[:2, 3] - sc.T_table_obj[:2, 3]) < 0.3, (T[:3, 3], sc.T_table_obj[:3, 3])
     assert rotation_angle_deg(T, sc.T_table_obj) < 0.1
