@@ -193,7 +193,9 @@ function render(s) {
   const r = s.result || {};
   const wi = workpieceIndex(r);
   const wp = wi >= 0 ? r.objects[wi] : null;
-  const msg = r.reason ? `Located with a remark: ${r.reason}` : `Located: ${r.objects.map((o) => o.name).join(", ")}.`;
+  // what each object rests on (the support chain), e.g. "bracket (on vise seat on table)"
+  const named = r.objects.map((o) => (o.chain && o.chain.length ? `${o.name} (on ${o.chain.join(" on ")})` : o.name));
+  const msg = r.reason ? `Located with a remark: ${r.reason}` : `Located: ${named.join(", ")}.`;
   say($("status"), msg, r.reason ? "warn" : "ok");
   showViewer(s.id);
   fillOffset(r.offset, wp);
@@ -254,6 +256,9 @@ function fillOffset(off, wp) {
   fillDatumChoice(off);
   const notes = [];
   if (off && off.object) notes.push(`Datum of ${off.object}.`);
+  if (wp && wp.chain && wp.chain.length) notes.push(`Rests on ${wp.chain.join(" on ")}.`);
+  if (wp && (wp.flags || []).includes("contact"))
+    notes.push("It does not sit where it should rest: its height and tilt are not known from this picture (probe Z, or take another view).");
   if (off && off.datum_ambiguous && !(off.datum_choices || []).length && off.datum_note) notes.push(`Note: ${off.datum_note}.`);
   if (off && off.datum_defined === false) notes.push("This part has no datum in the library: the offset is its model origin.");
   if (off && off.tilt_deg !== undefined) notes.push(`Tilt ${fmt(off.tilt_deg, 3)}°.`);

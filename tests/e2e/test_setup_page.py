@@ -202,6 +202,8 @@ def test_setup_upload_review_adjust_refine_confirm(page, service, scene, browser
         assert number(page, f"offset-{axis}") == pytest.approx(off[key], abs=0.006)
     assert number(page, "offset-c") == pytest.approx(off["c_deg"], abs=0.0006)
     assert page.get_by_test_id("uncertainty").inner_text().startswith(("PASS", "FAIL"))
+    # what the part rests on (the support chain) is said in words
+    assert f"Rests on {' on '.join(wp['chain'])}." in page.locator("#offset-note").inner_text(), wp.get("chain")
     # overlay picture loaded
     page.wait_for_function("() => document.querySelector('[data-testid=overlay-image]').naturalWidth > 0")
     # 3D view rendered inside the page's frame
