@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
@@ -169,23 +170,35 @@ class EdgeSamples:
 def project_points_px(P_cam: np.ndarray, K: np.ndarray, dist=None) -> np.ndarray:
     """Project camera-frame points (N, 3) mm to pixels (N, 2) with OpenCV's distortion model.
 
-    Same maths as ``cv2.projectPoints`` for ``dist = (k1, k2, p1, p2[, k3])``, vectorised and without
-    the per-call overhead. Points behind the camera give NaN.
+    Same maths as ``cv2.projectPoints`` for every coefficient count OpenCV takes: 4, 5 (k1 k2 p1 p2
+    [k3]), 8 (+ k4 k5 k6, rational), 12 (+ s1..s4, thin prism), vectorised and without the per-call
+    overhead; 14 coefficients with a tilted sensor (tau_x, tau_y not 0) go through OpenCV itself.
+    Points behind the camera give NaN.
     """
     P = np.asarray(P_cam, dtype=float).reshape(-1, 3)
     z = P[:, 2]
+    dd = np.zeros(0) if dist is None else np.asarray(dist, dtype=float).ravel()
+    if len(dd) not in (0, 4, 5, 8, 12, 14):
+        raise ValueError(f"distortion must have 4, 5, 8, 12 or 14 coefficients (OpenCV), got {len(dd)}")
+    if len(dd) == 14 and np.any(dd[12:] != 0):
+        uv = np.full((len(P), 2), np.nan)
+        ok = z > 1e-6
+        if np.any(ok):
+            uv[ok] = cv2.projectPoints(P[ok].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), np.asarray(K, float),
+                                       dd)[0].reshape(-1, 2)
+        return uv
     with np.errstate(divide="ignore", invalid="ignore"):
         x = P[:, 0] / z
         y = P[:, 1] / z
-    if dist is not None and np.any(np.asarray(dist, dtype=float) != 0):
-        d = np.zeros(5)
-        dd = np.asarray(dist, dtype=float).ravel()[:5]
-        d[: len(dd)] = dd
-        k1, k2, p1, p2, k3 = d
+    if len(dd) and np.any(dd != 0):
+        d = np.zeros(12)
+        d[: min(len(dd), 12)] = dd[:12]
+        k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = d
         r2 = x * x + y * y
-        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        r4 = r2 * r2
+        radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + s1 * r2 + s2 * r4
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + s3 * r2 + s4 * r4
     else:
         xd, yd = x, y
     uv = np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
