@@ -153,6 +153,23 @@ def _summary(rows: list[dict]) -> dict:
             "ms_med": float(np.median([r["ms"] for r in rows])) if rows else None}
 
 
+def per_axis_coverage(rows: list[dict]) -> str:
+    """Share of the located results whose error is within 1 and 3 stated sigma, per axis."""
+    keys = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
+    loc = [r for r in rows if r["located"]]
+    cells = []
+    for i, k in enumerate(keys):
+        rat = []
+        for r in loc:
+            e, sg = r["err"][i], r["sigma"].get(k)
+            if not np.isfinite(e):
+                continue                      # the spin of a round part: not an error
+            rat.append(0.0 if abs(e) < 1e-9 else (abs(e) / sg if sg else np.inf))   # sigma 0 holds only if exact
+        rat = np.asarray(rat)
+        cells.append(f"{np.mean(rat <= 1):.0%} / {np.mean(rat <= 3):.0%}" if len(rat) else "-")
+    return "| " + " | ".join(cells) + " |"
+
+
 def _fmt(v, f="{:.3f}"):
     return "-" if v is None else f.format(v)
 
@@ -255,6 +272,9 @@ def main(argv=None) -> int:
         if (out / f"{m}.json").exists():
             results[m] = json.loads((out / f"{m}.json").read_text())
     print(report(results))
+    print("\nwithin 1 / 3 sigma per axis (all located):\n| method | x | y | z | rx | ry | rz |\n|---|---|---|---|---|---|---|")
+    for m, rows in results.items():
+        print(f"| {m} " + per_axis_coverage(rows))
     for m, rows in results.items():
         if m.endswith("_moved"):
             print(f"\n{m}:\n" + two_view(rows))
