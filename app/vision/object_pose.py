@@ -839,9 +839,12 @@ def _refine(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_ca
                                   occlusion_test=True, subset=subset)
         if len(es.index) < 12:
             return T, {"n_visible": len(es.index), "failed": "too few of its edges are visible"}
-        far = _clear_of_other_edges(model, es, r + 3.0)
         off, contrast = _edges_along_normals(eimg.linear, es.uv_px, es.normal_uv, r)
-        good = far & np.isfinite(off) & (contrast >= min_contrast)
+        seen = np.isfinite(off) & (contrast >= min_contrast)
+        good = seen & _clear_of_other_edges(model, es, r + 3.0)
+        if good.sum() < 10:
+            # a small part (a few dozen pixels) has every sample near another edge: look closer in
+            good = seen & _clear_of_other_edges(model, es, min(r, 2.0) + 1.0)
         if good.sum() < 10:
             return T, {"n_visible": len(es.index), "failed": "too few image edges along the model's edges"}
         X = es.points_obj[good]
