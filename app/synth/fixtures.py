@@ -43,7 +43,6 @@ def on_parallels(rng, name: str, mesh: trimesh.Trimesh, parallel: trimesh.Trimes
     T = make_pose(_rz(c), [x, y, 0.0])
     ext = mesh.extents
     yaw = 0.0 if ext[0] >= ext[1] else 90.0                 # the part's long side along the set's x
-    span = float(max(ext[0], ext[1]))
     width = float(min(ext[0], ext[1]))
     h = float(parallel.bounds[1, 2])
     objs = [SceneObject(name, mesh, _part_pose(mesh, T, 0.0, 0.0, yaw, h), albedo=float(rng.uniform(0.5, 0.75)))]
@@ -52,7 +51,6 @@ def on_parallels(rng, name: str, mesh: trimesh.Trimesh, parallel: trimesh.Trimes
         Tp = T @ make_pose(None, [0.0, off, 0.0])
         objs.append(SceneObject(f"{parallel_name}#{k}", parallel, Tp @ place_on_table(parallel, 0.0, 0.0, 0.0),
                                 albedo=0.38))
-    del span
     return objs
 
 
@@ -72,7 +70,6 @@ def in_vise(rng, name: str, mesh: trimesh.Trimesh, vise: trimesh.Trimesh, vise_n
     T_vise = make_pose(_rz(c), [x, y, 0.0]) @ make_pose(None, [-0.5 * opening, 0.0, 0.0])
     h_seat = float(seat["z_mm"])
     h_par = float(parallel.bounds[1, 2])
-    along = float(max(ext[0], ext[1]))
     objs = [SceneObject(name, mesh, _part_pose(mesh, T_vise, 0.5 * across + 0.5, 0.0, yaw, h_seat + h_par),
                         albedo=float(rng.uniform(0.5, 0.75))),
             SceneObject(vise_name, vise, T_vise, albedo=0.4)]
@@ -81,7 +78,6 @@ def in_vise(rng, name: str, mesh: trimesh.Trimesh, vise: trimesh.Trimesh, vise_n
     for k, xp in enumerate(xps):            # along the jaws, under the part's two edges
         Tp = T_vise @ make_pose(_rz(90.0), [xp, 0.0, h_seat])
         objs.append(SceneObject(f"{parallel_name}#{k}", parallel, Tp, albedo=0.38))
-    del along
     return objs
 
 

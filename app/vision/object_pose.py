@@ -533,8 +533,6 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         FK = sfft.rfft2(ker[used], s=(Py, Px), workers=-1)
         corr = sfft.irfft2(np.einsum("kij,kij->ij", FS[used], np.conj(FK)), s=(Py, Px), workers=-1)
         score[it] = np.roll(corr, (Rk, Rk), axis=(0, 1))[:ny, :nx]
-    if cache is not None and "debug_coarse" in cache:      # diagnostics: the coarse score volume
-        cache["debug_coarse"].append((state, height_mm, score.copy(), (x0, y0, b, dth)))
     flat = score.ravel()
     k = min(len(flat), 20 * n_coarse)
     top = np.argpartition(-flat, k - 1)[:k]
