@@ -1261,7 +1261,8 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
 
     known_heights_mm : heights (table z) of surfaces known to carry parts (the table, located
         fixtures' faces); a start searched at another height (a riser of unknown height) has its
-        height fitted (``free_height``) and only a broad prior on it. None: every searched height.
+        height fitted (``free_height``) and only a broad prior on it. None: every searched height
+        (with ``free_height``: none, the height is always fitted).
     table_extent_xy : (x0, x1, y0, y1) of the table top (mm, table frame): the part's centre is
         searched within it, grown by half the part's size; None: wherever image edges meet the plane
     contact_sigma_mm, contact_sigma_deg : how far a part resting on a known surface may sit above
@@ -1338,8 +1339,8 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     min_contrast = max(0.01, 6.0 * eimg.noise_linear)
 
     def on_known_surface(T) -> bool:
-        if known_heights_mm is None:
-            return True
+        if known_heights_mm is None:      # every searched height is a known surface, unless told to fit it
+            return not free_height
         z0 = float(transform_points(T, model.mesh.vertices)[:, 2].min())
         return any(abs(z0 - h) < 0.5 for h in known_heights_mm)
 
