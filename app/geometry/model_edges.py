@@ -566,7 +566,8 @@ def _with_cad_stances(mesh: trimesh.Trimesh, center: np.ndarray, states: list[Re
         wanted.pop("-z")
         states = []
     for s in states:
-        tag = next((k for k, R in wanted.items() if np.allclose(s.T_rest_obj[:3, :3] @ R.T, _rz_of(s.T_rest_obj[:3, :3] @ R.T), atol=1e-6)), "")
+        # the stance is R turned about the table normal: the turn keeps z
+        tag = next((k for k, R in wanted.items() if (s.T_rest_obj[:3, :3] @ R.T)[2, 2] > 1 - 1e-6), "")
         out.append(RestingState(s.T_rest_obj, s.probability, s.height_mm, s.same_as, tag))
     have = {s.cad_axis for s in out}
     for tag, R in wanted.items():
@@ -577,13 +578,6 @@ def _with_cad_stances(mesh: trimesh.Trimesh, center: np.ndarray, states: list[Re
         T = make_pose(R, [-cm[0], -cm[1], -float(V[:, 2].min())])
         out.append(RestingState(T_rest_obj=T, probability=0.0, height_mm=float(np.ptp(V[:, 2])), cad_axis=tag))
     return out
-
-
-def _rz_of(R: np.ndarray) -> np.ndarray:
-    """The rotation about z closest to R (R itself when R turns about z only)."""
-    a = float(np.arctan2(R[1, 0] - R[0, 1], R[0, 0] + R[1, 1]))
-    c, s_ = np.cos(a), np.sin(a)
-    return np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def resting_pose(model: PreparedModel, state: int, x_mm: float, y_mm: float, theta_deg: float,

@@ -25,6 +25,12 @@ CARRYING_KINDS = ("clamp", "support")
 Coord = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_COORD_MM, le=MAX_COORD_MM)]
 
 
+def polygon_area_mm2(xy: Any) -> float:
+    """Area enclosed by a polygon (N, 2) in order around it (shoelace formula), mm²."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    return 0.5 * abs(float(np.dot(xy[:, 0], np.roll(xy[:, 1], 1)) - np.dot(xy[:, 1], np.roll(xy[:, 0], 1))))
+
+
 class SupportSurfaceSpec(BaseModel):
     """One horizontal plane patch a part can rest on, in the model frame (mm)."""
 
@@ -55,8 +61,7 @@ class SupportSurfaceSpec(BaseModel):
 
     @model_validator(mode="after")
     def _area(self) -> "SupportSurfaceSpec":
-        xy = np.asarray(self.outline_xy, float)
-        area = 0.5 * abs(float(np.dot(xy[:, 0], np.roll(xy[:, 1], 1)) - np.dot(xy[:, 1], np.roll(xy[:, 0], 1))))
+        area = polygon_area_mm2(self.outline_xy)
         if area < MIN_AREA_MM2:
             raise ValueError(f"outline_xy of {self.name!r} encloses {area:.3g} mm²; give a polygon with an area "
                              f"(at least {MIN_AREA_MM2:g} mm², points in order around it)")
@@ -64,7 +69,7 @@ class SupportSurfaceSpec(BaseModel):
 
 
 class _Surfaces(BaseModel):
-    surfaces: list[SupportSurfaceSpec] = Field(max_length=MAX_SURFACES)
+    surfaces: list[SupportSurfaceSpec]          # (their count is checked before, with its own message)
 
     @model_validator(mode="after")
     def _unique(self) -> "_Surfaces":

@@ -256,12 +256,13 @@ def load_example_library(session: Session, files: FileStore, library_dir: Path) 
 
     added, updated = [], []
     for entry in load_library_manifest(Path(library_dir)):
-        data = (Path(library_dir) / entry.file).read_bytes()
         existing = session.exec(select(LibraryModel).where(LibraryModel.key == entry.key)).first()
         if existing is not None:
+            # (the file is read only when an upgrade is possible: not on every start for every model)
             if entry.support_surfaces is not None and existing.current_revision == 1:
                 rev = get_revision(session, existing.id)
-                if rev.support_surfaces is None and rev.source_sha256 == hashlib.sha256(data).hexdigest():
+                if rev.support_surfaces is None and \
+                        rev.source_sha256 == hashlib.sha256((Path(library_dir) / entry.file).read_bytes()).hexdigest():
                     add_revision(session, files, existing.id, support_surfaces=entry.support_surfaces,
                                  note="support surfaces declared in the example library")
                     updated.append(entry.key)
@@ -269,7 +270,7 @@ def load_example_library(session: Session, files: FileStore, library_dir: Path) 
         fiducials = None
         if entry.fiducials:
             fiducials = json.loads((Path(library_dir) / entry.fiducials).read_text())
-        create_model(session, files, data=data, filename=entry.file,
+        create_model(session, files, data=(Path(library_dir) / entry.file).read_bytes(), filename=entry.file,
                      kind=entry.kind, name=entry.name, units=entry.units,
                      T_obj_datum=_jsonable(entry.T_obj_datum), fiducials=fiducials,
                      description=entry.description, key=entry.key, support_surfaces=entry.support_surfaces)

@@ -12,15 +12,10 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from app.geometry.transforms import make_pose
+from app.geometry.transforms import make_pose, pose_from_xyz_euler
 from app.synth.scene import SceneObject, place_on_table
 
 MODES = ("table", "vise", "parallels")
-
-
-def _rz(deg: float) -> np.ndarray:
-    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def _part_pose(mesh: trimesh.Trimesh, T_table_frame: np.ndarray, x_mm: float, y_mm: float, yaw_deg: float,
@@ -40,7 +35,7 @@ def on_parallels(rng, name: str, mesh: trimesh.Trimesh, parallel: trimesh.Trimes
     """Two parallels on the table under the part's long sides (a fifth in from its ends), the part on
     their tops; the whole set turned at random about the table normal."""
     c = rng.uniform(0, 360)
-    T = make_pose(_rz(c), [x, y, 0.0])
+    T = pose_from_xyz_euler(x, y, 0.0, c_deg=c)
     ext = mesh.extents
     yaw = 0.0 if ext[0] >= ext[1] else 90.0                 # the part's long side along the set's x
     width = float(min(ext[0], ext[1]))
@@ -67,7 +62,7 @@ def in_vise(rng, name: str, mesh: trimesh.Trimesh, vise: trimesh.Trimesh, vise_n
         return None
     c = rng.uniform(0, 360)
     # the vise's seat centre at (x, y) on the table
-    T_vise = make_pose(_rz(c), [x, y, 0.0]) @ make_pose(None, [-0.5 * opening, 0.0, 0.0])
+    T_vise = pose_from_xyz_euler(x, y, 0.0, c_deg=c) @ make_pose(None, [-0.5 * opening, 0.0, 0.0])
     h_seat = float(seat["z_mm"])
     h_par = float(parallel.bounds[1, 2])
     objs = [SceneObject(name, mesh, _part_pose(mesh, T_vise, 0.5 * across + 0.5, 0.0, yaw, h_seat + h_par),
@@ -76,7 +71,7 @@ def in_vise(rng, name: str, mesh: trimesh.Trimesh, vise: trimesh.Trimesh, vise_n
     t = float(parallel.extents[1])
     xps = (0.5 * t + 1.0, across - 0.5 * t - 1.0) if across > 2 * t + 4 else (0.5 * across + 0.5,)
     for k, xp in enumerate(xps):            # along the jaws, under the part's two edges
-        Tp = T_vise @ make_pose(_rz(90.0), [xp, 0.0, h_seat])
+        Tp = T_vise @ pose_from_xyz_euler(xp, 0.0, h_seat, c_deg=90.0)
         objs.append(SceneObject(f"{parallel_name}#{k}", parallel, Tp, albedo=0.38))
     return objs
 

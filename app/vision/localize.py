@@ -21,10 +21,11 @@ import numpy as np
 import trimesh
 
 from app.geometry.model_edges import PreparedModel, prepare_model
+from app.geometry.support_surfaces import CARRYING_KINDS
 from app.vision import object_pose
 from app.vision.fiducials import draw_table, locate_table
 
-FIXTURE_KINDS = ("clamp", "support")
+FIXTURE_KINDS = CARRYING_KINDS                 # clamps and supports: they carry parts
 # Fixtures are often half hidden by the part they hold (jaws, parallels under it): they are accepted
 # at a lower share of supported edges than a workpiece, with the same margin and distinctiveness.
 FIXTURE_MIN_SCORE = 0.35

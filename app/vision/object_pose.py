@@ -871,7 +871,7 @@ def _refine(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_ca
             if pin is not None:   # round part: pin the unobservable spin
                 res = np.append(res, 1e4 * float(p[3:6] @ pin))
             if prior is not None:
-                res = np.append(res, w_prior * _prior_offsets(T1, prior, c_table))
+                res = np.append(res, w_prior * _prior_offsets(T1, prior))
             return res
 
         xs = np.array([1.0, 1.0, 1.0, 1e-3, 1e-3, 1e-3])[free]
@@ -902,7 +902,7 @@ def _verify(eimg, model, T_table_obj, T_cam_table, K, dist, occluders_cam, subse
 PRIOR_PX = 0.5
 
 
-def _prior_offsets(T: np.ndarray, prior, c_table: np.ndarray | None = None) -> np.ndarray:
+def _prior_offsets(T: np.ndarray, prior) -> np.ndarray:
     """(dz / sigma_z, tilt_x / sigma_t, tilt_y / sigma_t) of ``T`` against the prior's resting pose,
     the height taken at the part's centre ``c_obj`` (obj frame)."""
     T_rest, sz, st, c_obj = prior
@@ -988,6 +988,12 @@ def _same_up_to_symmetry(model: PreparedModel, T1, T2, pos_tol, ang_tol, exact_o
     return False
 
 
+def _intersect(a, b):
+    """Overlap of two table-plane extents (x0, x1, y0, y1), or None where they do not overlap."""
+    e = (max(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), min(a[3], b[3]))
+    return e if e[1] > e[0] and e[3] > e[2] else None
+
+
 def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, height_offsets_mm=(0.0,),
             resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10, max_edges: int = 60000, rng=None,
             timings: dict | None = None, table_extent_xy=None):
@@ -1024,10 +1030,8 @@ def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, heig
     lo_xy = np.maximum(np.percentile(pts, 1, axis=0), C[:2] - 3000.0) - 150.0
     hi_xy = np.minimum(np.percentile(pts, 99, axis=0), C[:2] + 3000.0) + 150.0
     extent = (float(lo_xy[0]), float(hi_xy[0]), float(lo_xy[1]), float(hi_xy[1]))
-    if table_extent_xy is not None:
-        t0, t1, t2, t3 = table_extent_xy
-        extent = (max(extent[0], t0), min(extent[1], t1), max(extent[2], t2), min(extent[3], t3))
-    if extent[1] <= extent[0] or extent[3] <= extent[2]:
+    extent = _intersect(extent, extent if table_extent_xy is None else table_extent_xy)   # None if empty
+    if extent is None:
         return "the image's edges meet the table plane only more than 3 m from the camera"
     if resting_states is None:
         states = [i for i, s in enumerate(model.resting_states)
@@ -1042,11 +1046,9 @@ def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, heig
     planes = []
     for h in height_offsets_mm:            # a height, or (height, table-plane extent to search there)
         h, ext = (h if isinstance(h, tuple) else (h, None))
+        ext = extent if ext is None else _intersect(ext, extent)
         if ext is not None:
-            ext = (max(ext[0], extent[0]), min(ext[1], extent[1]), max(ext[2], extent[2]), min(ext[3], extent[3]))
-            if ext[1] <= ext[0] or ext[3] <= ext[2]:
-                continue
-        planes.append((float(h), ext or extent))
+            planes.append((float(h), ext))
     for st in states:
         for h, ext in planes:
             hyps += _plane_search(model, st, h, rays, C, ext, n_starts, px_mm=px_mm,
@@ -1061,19 +1063,12 @@ def _search(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, heig
     # keep the best few of every state besides the best overall
     # nor between heights (a riser plane full of the table's edges outvotes the part's own): the
     # best two of every (state, height) as well
-    top = {id(h) for h in hyps[:n_planar]}
     groups: dict = {}
     for h in hyps:
         groups.setdefault((h.state, round(h.height_mm, 1)), []).append(h)
     extra = [h for st in states for h in [g for g in hyps if g.state == st][:3]]
     extra += [h for g in groups.values() for h in g[:2]]
-    seen = set(top)
-    keep = list(hyps[:n_planar])
-    for h in extra:
-        if id(h) not in seen:
-            seen.add(id(h))
-            keep.append(h)
-    hyps = keep
+    hyps = list({id(h): h for h in hyps[:n_planar] + extra}.values())     # in order, each once
     z_typ = float(np.median(transform_points(T_cam_table, np.array([[*h.T_table_obj[:2, 3], 0.0] for h in hyps]))[:, 2]))
     px_per_mm = K[0, 0] / max(z_typ, 1.0)
     sub_coarse = _sample_subset(model, px_per_mm, 4.0, 400)
@@ -1534,8 +1529,10 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
     flags = []
     tilt_sigma = float("nan")
+    cov6_full = None
     if "sol" in info6:
-        cov6, _, _ = _covariance(info6, K, dist, T_cam_table, data_scale=sigma_scale)
+        cov6_full = _covariance(info6, K, dist, T_cam_table, data_scale=sigma_scale)
+        cov6 = cov6_full[0]
         tilt_sigma = float(np.degrees(np.sqrt(max(cov6[3, 3] + cov6[4, 4], 0.0))))
     if "sol" in info6 and tilt > max_tilt_deg and tilt > 3.0 * tilt_sigma:
         flags.append("tilt")          # the free fit says: not lying flat
@@ -1556,7 +1553,8 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
     S_up = max([np.eye(4)] + [s.S for s in model.symmetries if s.exact],
                key=lambda S: round(float((T_table_obj @ S)[2, 2]), 6))
     T_table_obj, T6 = T_table_obj @ S_up, T6 @ S_up
-    cov, inl, rms = _covariance(info, K, dist, T_cam_table, data_scale=sigma_scale)
+    # the 6-DoF posterior is already at hand unless the flat fit stands in for it
+    cov, inl, rms = cov6_full if info is info6 else _covariance(info, K, dist, T_cam_table, data_scale=sigma_scale)
     # covariance of (origin position, rotation): origin = c + R(dr)(o - c) + dt
     o = T_table_obj[:3, 3]
     c = transform_points(T_table_obj, model.center_obj[None])[0]
@@ -1570,11 +1568,13 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
              "rz_deg": float(np.degrees(sd[5]))}
     if "sol" not in info6 or contact_conflict:     # height and tilt not measured, only assumed
         sigma.update(z_mm=float("nan"), rx_deg=float("nan"), ry_deg=float("nan"))
+    # the spin of a round part about its own axis is not seen: undetermined, a datum question
+    spin_free = set()
     if model.continuous_axis_obj is not None:
         ax = np.abs(T_table_obj[:3, :3] @ model.continuous_axis_obj)
-        for k, key in enumerate(("rx_deg", "ry_deg", "rz_deg")):
-            if ax[k] > 0.9:
-                sigma[key] = float("nan")
+        spin_free = {key for k, key in enumerate(("rx_deg", "ry_deg", "rz_deg")) if ax[k] > 0.9}
+    for key in spin_free:
+        sigma[key] = float("nan")
     # symmetry and datum
     exact = [s for s in model.symmetries if s.exact]
     listed = list(exact)
@@ -1620,10 +1620,6 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
         flags.append("datum_ambiguous")
     # an axis whose sigma is unknown fails (NaN compares false); only the spin of a round part about
     # its own axis is exempt: it is a datum question, not an uncertainty
-    spin_free = set()
-    if model.continuous_axis_obj is not None:
-        ax = np.abs(T_table_obj[:3, :3] @ model.continuous_axis_obj)
-        spin_free = {key for k, key in enumerate(("rx_deg", "ry_deg", "rz_deg")) if ax[k] > 0.9}
     uncertainty_ok = bool(all(sigma[k] <= max_sigma_mm for k in ("x_mm", "y_mm", "z_mm")) and
                           all(sigma[k] <= max_sigma_deg for k in ("rx_deg", "ry_deg", "rz_deg") if k not in spin_free))
     if not uncertainty_ok:

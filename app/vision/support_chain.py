@@ -18,6 +18,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull
 
+from app.geometry.support_surfaces import polygon_area_mm2
 from app.geometry.transforms import transform_points
 
 
@@ -79,7 +80,7 @@ def declared_surfaces(declared: list[dict], T_table_obj: np.ndarray, carrier: st
     for d in declared:
         xy = np.asarray(d["outline_xy"], float).reshape(-1, 2)
         pts = transform_points(np.asarray(T_table_obj, float), np.column_stack([xy, np.full(len(xy), float(d["z_mm"]))]))
-        a = 0.5 * abs(float(np.dot(xy[:, 0], np.roll(xy[:, 1], 1)) - np.dot(xy[:, 1], np.roll(xy[:, 0], 1))))
+        a = polygon_area_mm2(xy)
         name = f"{carrier} {d['name']}" if d.get("name") else carrier
         out.append(SupportSurface(name, float(pts[:, 2].mean()), pts[:, :2], a))
     return sorted(out, key=lambda s: -s.height_mm)
