@@ -372,19 +372,28 @@ def _edge_rays_table(eimg: EdgeImage, K, dist, T_table_cam, max_edges: int, rng)
     return idx, rays[: len(idx)], rays[len(idx):]
 
 
-def _levels(m_z: np.ndarray, max_levels: int = 6, gap_mm: float = 0.5) -> list[np.ndarray]:
-    """Group template points by height (clusters ``gap_mm`` apart; quantised when there are many)."""
+def _levels(m_z: np.ndarray, w: np.ndarray | None = None, max_levels: int = 4,
+            gap_mm: float = 0.5) -> list[tuple[float, np.ndarray]]:
+    """Template points grouped by height: (height mm, indices) of at most ``max_levels`` planes.
+
+    Points closer than ``gap_mm`` in height form one group (chains of them too). When there are more
+    groups than planes, the heaviest groups (by weight ``w``) become the planes and the other points
+    join the nearest plane within ``gap_mm`` or are left out: merging two real heights (a vise's base
+    at 0 and its ways at 14 mm) would put both on a plane where neither is."""
+    w = np.ones(len(m_z)) if w is None else np.asarray(w, float)
     order = np.argsort(m_z)
-    levels, start = [], 0
+    groups, start = [], 0
     for k in range(1, len(order) + 1):
         if k == len(order) or m_z[order[k]] - m_z[order[k - 1]] > gap_mm:
-            levels.append(order[start:k])
+            groups.append(order[start:k])
             start = k
-    if len(levels) > max_levels:
-        q = np.linspace(m_z.min(), m_z.max() + 1e-6, max_levels + 1)
-        lab = np.clip(np.searchsorted(q, m_z, side="right") - 1, 0, max_levels - 1)
-        levels = [np.nonzero(lab == i)[0] for i in range(max_levels) if np.any(lab == i)]
-    return levels
+    if len(groups) <= max_levels:
+        return [(float(np.average(m_z[g], weights=w[g] + 1e-12)), g) for g in groups]
+    groups.sort(key=lambda g: -float(w[g].sum()))
+    heights = np.array([float(np.average(m_z[g], weights=w[g] + 1e-12)) for g in groups[:max_levels]])
+    near = np.argmin(np.abs(m_z[:, None] - heights[None, :]), axis=1)
+    close = np.abs(m_z - heights[near]) <= gap_mm
+    return [(float(h), np.nonzero(close & (near == i))[0]) for i, h in enumerate(heights)]
 
 
 def _plane_edges(rays, C, z: float, extent_xy, b: float):
@@ -467,9 +476,14 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     P = transform_points(rs.T_rest_obj, model.samples_obj)
     D = model.sample_dir_obj @ rs.T_rest_obj[:3, :3].T
     N = model.mesh.face_normals @ rs.T_rest_obj[:3, :3].T
-    cand = np.nonzero(np.abs(D[:, 2]) < 0.3)[0]
+    horizontal = np.abs(D[:, 2]) < 0.3
+    cand = np.nonzero(horizontal)[0]
     if len(cand) == 0:
         return []
+    # edges of curved surfaces show only as silhouettes, and where depends on the view: in the coarse
+    # template (one plane per height band) a vise's screw and round handles would bury its outline
+    crease = model.edge_feature[model.sample_edge[cand]]
+    coarse_from = crease if crease.sum() >= 50 else np.ones(len(cand), bool)
     # edges of upward faces show from any side and count fully; others (bottom outline, edges
     # between side faces) half: which of those show depends on the unknown rotation
     ef = model.edge_faces[model.sample_edge[cand]]
@@ -486,10 +500,11 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         ef_s = model.edge_faces[model.sample_edge[sel]]
         return N[ef_s[:, 0]], N[np.where(ef_s[:, 1] >= 0, ef_s[:, 1], ef_s[:, 0])]
 
-    def template(spacing_mm, max_n):
+    def template(spacing_mm, max_n, only=None):
         step = max(1, int(round(spacing_mm / model.sample_step_mm)))
-        sel = cand[::step]
-        w = wts_all[::step]
+        keep = np.ones(len(cand), bool) if only is None else only
+        sel = cand[keep][::step]
+        w = wts_all[keep][::step]
         if len(sel) > max_n:
             k = np.linspace(0, len(sel) - 1, max_n).astype(np.int64)
             sel, w = sel[k], w[k]
@@ -505,9 +520,9 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     dth = 2 * np.pi / nt
     nch = 4
     ch_w = np.pi / nch
-    m_xy, m_phi, m_z, wts, _ = template(b / 2, max_template)
-    levels = _levels(m_z, max_levels=4, gap_mm=0.5 * b)
-    support = [_support_maps(rays, C, float(np.mean(m_z[lv])), extent_xy, b, nch, 1.5) for lv in levels]
+    m_xy, m_phi, m_z, wts, _ = template(b / 2, max_template, only=coarse_from)
+    levels = _levels(m_z, wts, max_levels=6, gap_mm=0.5 * b)
+    support = [_support_maps(rays, C, z_l, extent_xy, b, nch, 1.5) for z_l, _ in levels]
     # support relative to its surroundings (about half the part's size): textured or busy areas,
     # where every direction has edges everywhere, no longer outscore the part's own outline
     hp = int(np.clip(2 * round(0.25 * diam / b) + 1, 3, 15))
@@ -520,9 +535,11 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     Py = cv2.getOptimalDFTSize(ny + Rk + 1)
     Px = cv2.getOptimalDFTSize(nx + Rk + 1)
     FS = sfft.rfft2(np.concatenate(support, axis=0).astype(np.float32), s=(Py, Px), workers=-1)
-    lvl_of = np.zeros(len(m_xy), np.int64)
-    for li, lv in enumerate(levels):
+    lvl_of = np.full(len(m_xy), -1, np.int64)        # -1: on none of the planes, left out
+    for li, (_, lv) in enumerate(levels):
         lvl_of[lv] = li
+    on_plane = lvl_of >= 0
+    m_xy, m_phi, wts, lvl_of = m_xy[on_plane], m_phi[on_plane], wts[on_plane], lvl_of[on_plane]
     score = np.zeros((nt, ny, nx), np.float32)
     for it in range(nt):
         th = it * dth

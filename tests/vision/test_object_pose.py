@@ -13,6 +13,7 @@ from app.geometry.model_edges import prepare_model
 from app.geometry.transforms import inv, pose_from_xyz_euler
 from app.synth.scene import Scene, SceneObject, look_at_pose, place_on_table, render_scene
 from app.synth.table import box_table_layout, box_table_mesh
+from app.vision.localize import marker_labels_table
 from app.vision.object_pose import (ObjectFailure, ObjectPose, draw_object, locate_object, mask_known_edges,
                                     mask_table_regions, prepare_image, recognise)
 
@@ -156,12 +157,15 @@ def test_table_regions_remove_only_the_edges_inside_them(clamped):
 def test_recognition_accepts_the_part_and_refuses_absent_ones(models, clamped):
     scene, r, _, _ = clamped
     cands = [models["pin_block_32"], models["bracket_140"], models["flange_plate_80"]]
-    rec = recognise(r.image, K, DIST, scene.T_cam_table, cands, gamma=scene.gamma)
+    # as the service does (localize): the markers' printed squares are not searched; a 32 x 24 mm
+    # block fits their pattern well enough otherwise
+    labels = marker_labels_table(scene.table_layout)
+    rec = recognise(r.image, K, DIST, scene.T_cam_table, cands, gamma=scene.gamma, known_regions=labels)
     assert rec and rec.best.model_name == "bracket_140"
     assert [d["model"] for d in rec.ranked][0] == "bracket_140"
     assert all(p.model_name == "bracket_140" for p in rec.accepted)
     rec2 = recognise(r.image, K, DIST, scene.T_cam_table, [models["pin_block_32"], models["flange_plate_80"]],
-                     gamma=scene.gamma)
+                     gamma=scene.gamma, known_regions=labels)
     assert not rec2 and rec2.best is None
     assert rec2.reason.startswith("not recognised: no candidate reached 60% with a margin of 10% (top: ")
 
@@ -178,9 +182,9 @@ def test_failure_answers_are_sentences(models, clamped):
     assert res.kind == "bad_input"
     assert res.reason == ("the camera is below the table plane according to T_cam_table (camera height "
                           "-800 mm); check the table pose")
-    # a part that is not there: refused, never a pose
+    # a part that is not there: refused, never a pose (the markers masked, as the service does)
     res = locate_object(r.image, K, DIST, scene.T_cam_table, models["pin_block_32"], gamma=scene.gamma,
-                        min_score=0.6)
+                        min_score=0.6, known_regions=marker_labels_table(scene.table_layout))
     assert isinstance(res, ObjectFailure) and res.kind in ("not_found", "ambiguous")
     assert res.reason.startswith("pin_block_32 ")
     assert json.loads(json.dumps(res.to_dict()))["ok"] is False
