@@ -23,6 +23,7 @@ import trimesh
 from app.geometry.model_edges import PreparedModel, prepare_model
 from app.geometry.support_surfaces import CARRYING_KINDS
 from app.vision import object_pose
+from app.vision.blas_threads import one_blas_thread
 from app.vision.fiducials import draw_table, locate_table
 
 FIXTURE_KINDS = CARRYING_KINDS                 # clamps and supports: they carry parts
@@ -122,6 +123,7 @@ def draw_overlay(image: np.ndarray, K, dist, table_result, located: list[tuple[C
     return out
 
 
+@one_blas_thread
 def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: dict,
              candidates: list[Candidate], *, recognise: bool = False,
              on_stage: Callable[[Stage], None] | None = None, min_score: float = 0.5,

@@ -43,6 +43,7 @@ from scipy.spatial.transform import Rotation
 
 from app.geometry.model_edges import PreparedModel, project_points_px, render_depth, visible_edge_samples
 from app.geometry.transforms import check_pose, inv, make_pose, transform_points
+from app.vision.blas_threads import one_blas_thread
 
 __all__ = [
     "EdgeImage",
@@ -1247,6 +1248,7 @@ def _start_hypotheses(model: PreparedModel, start_poses, T_cam_table, K, dist, e
     return hyps, px_per_mm
 
 
+@one_blas_thread
 def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder_models=(), known_models=(),
                   known_regions=(),
                   gamma: float = 2.2, height_offsets_mm=(0.0,), free_height: bool = False, resting_states=None,
@@ -1693,6 +1695,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, occluder
         timings_ms=dict(timings))
 
 
+@one_blas_thread
 def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, min_score: float = 0.6,
               min_margin: float = 0.1, gamma: float = 2.2, n_full: int = 4, **locate_kw) -> Recognition:
     """Which of ``candidates`` are in the image?
