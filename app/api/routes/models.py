@@ -8,7 +8,7 @@ from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile,
 
 from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
 from app.api.schemas import ModelPublic, Page, RevisionPublic
-from app.api.uploads import json_form
+from app.api.uploads import content_disposition, json_form, safe_filename
 from app.services import library
 from app.store.models import LibraryModel, ModelRevision
 
@@ -54,7 +54,7 @@ async def create_model(
     max_bytes = int(settings.max_upload_mb * 1e6)
     surfaces = json_form(support_surfaces, "support_surfaces")
     data = await _read_upload(file, max_bytes)
-    model = library.create_model(session, files, data=data, filename=file.filename or "upload", kind=kind,
+    model = library.create_model(session, files, data=data, filename=safe_filename(file.filename), kind=kind,
                                  name=name, units=units, T_obj_datum=T_obj_datum, fiducials=fiducials,
                                  description=description, support_surfaces=surfaces, max_bytes=max_bytes,
                                  max_faces=settings.max_mesh_faces)
@@ -102,7 +102,7 @@ async def add_revision(
     max_bytes = int(settings.max_upload_mb * 1e6)
     kwargs: dict = {}
     if file is not None and file.filename:
-        kwargs.update(data=await _read_upload(file, max_bytes), filename=file.filename)
+        kwargs.update(data=await _read_upload(file, max_bytes), filename=safe_filename(file.filename))
     if T_obj_datum is not None:
         kwargs["T_obj_datum"] = None if T_obj_datum.strip() == "null" else T_obj_datum
     if fiducials is not None:
@@ -116,7 +116,7 @@ async def add_revision(
 
 def _file_response(files, sha: str, media_type: str, filename: str) -> Response:
     return Response(files.read(sha), media_type=media_type,
-                    headers={"Content-Disposition": f'inline; filename="{filename}"', "ETag": f'"{sha}"',
+                    headers={"Content-Disposition": content_disposition(filename), "ETag": f'"{sha}"',
                              "Cache-Control": "public, max-age=31536000, immutable"})
 
 

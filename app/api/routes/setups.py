@@ -12,7 +12,7 @@ from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal
-from app.api.uploads import read_upload
+from app.api.uploads import read_image_upload
 from app.services import setups as svc
 from app.services.errors import Invalid, NotFound
 from app.store.db import session_scope
@@ -77,7 +77,7 @@ async def create_setup(
     grab: Annotated[bool, Form(description="Grab the image from the camera's source")] = False,
     image: Annotated[UploadFile | None, File(description="JPEG/PNG of table and workpiece")] = None,
 ) -> SetupAccepted:
-    data = await read_upload(image, settings, "image") if image is not None and image.filename else None
+    data = await read_image_upload(image, settings, "image") if image is not None and image.filename else None
     setup = svc.create_setup(session, files, machine_id=machine_id, camera_id=camera_id,
                              model_ids=_parse_ids(model_ids), image=data, grab=grab, created_by=who.label())
     session.commit()
@@ -163,10 +163,13 @@ def get_image(session: SessionDep, files: FilesDep, setup_id: int) -> Response:
 
 
 class Nudge(BaseModel):
-    dx_mm: float = 0.0
-    dy_mm: float = 0.0
-    dz_mm: float = 0.0
-    dc_deg: float = Field(default=0.0, description="Rotation about table z through the object's origin")
+    model_config = {"allow_inf_nan": False}
+
+    dx_mm: float = Field(default=0.0, ge=-50, le=50, description="Shift along table x, mm (at most 50 per step)")
+    dy_mm: float = Field(default=0.0, ge=-50, le=50)
+    dz_mm: float = Field(default=0.0, ge=-50, le=50)
+    dc_deg: float = Field(default=0.0, ge=-30, le=30,
+                          description="Rotation about table z through the object's origin, degrees (at most 30)")
 
 
 class AdjustBody(BaseModel):
