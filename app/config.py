@@ -46,6 +46,10 @@ class Settings(BaseSettings):
                                 description="1-sigma position uncertainty (x, y, z) a result may have to pass.")
     max_sigma_deg: float = Field(default=0.05, validation_alias="SETUPCAM_MAX_SIGMA_DEG",
                                  description="1-sigma rotation uncertainty about z a result may have to pass.")
+    max_adjust_mm: float = Field(default=1.0, gt=0, validation_alias="SETUPCAM_MAX_ADJUST_MM",
+                                 description="An operator's move of a fitted part beyond this (or beyond 3 sigma) "
+                                             "fails the uncertainty check until the part is refined.")
+    max_adjust_deg: float = Field(default=0.5, gt=0, validation_alias="SETUPCAM_MAX_ADJUST_DEG")
     max_offset_change_mm: float = Field(default=5.0, validation_alias="SETUPCAM_MAX_OFFSET_CHANGE_MM",
                                         description="Export needs an acknowledgement when X/Y/Z change more than this.")
     max_offset_change_deg: float = Field(default=2.0, validation_alias="SETUPCAM_MAX_OFFSET_CHANGE_DEG")
@@ -59,6 +63,9 @@ class Settings(BaseSettings):
                                        description='JSON list of extra origins (e.g. ["https://cell2.example"]) '
                                                    "whose pages may write with the session cookie; the service's "
                                                    "own Host always may.")
+    login_free_failures: int = Field(default=5, ge=1, validation_alias="SETUPCAM_LOGIN_FREE_FAILURES",
+                                     description="Failed sign-ins per name or address before each further attempt "
+                                                 "waits (60 s, doubling per failure, at most 15 min).")
     cookie_secure: bool = Field(default=False, validation_alias="SETUPCAM_COOKIE_SECURE",
                                 description="Mark the session cookie Secure (set it when served over HTTPS).")
     log_json: bool = Field(default=True, validation_alias="SETUPCAM_LOG_JSON")

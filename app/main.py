@@ -15,15 +15,17 @@ from sqlalchemy.exc import DataError
 
 import app as app_pkg
 from app.api.deps import path_ids_in_range
+from app.api.headers import SecurityHeaders
 from app.api.limits import RequestGuard, route_table
 from app.api.routes import audit, auth, cameras, health, machines, models, pages, planning, rotary, setups, sheet
 from app.config import Settings, get_settings
-from app.services.access import ensure_first_admin
+from app.services.access import dummy_hash, ensure_first_admin
 from app.services.errors import ServiceError
 from app.services.events import EventBus
 from app.services.jobs import JobContext, JobRunner
 from app.services.setups import run_setup_job, unfinished_setup_ids
-from app.store.db import make_engine, migrate, session_scope
+from app.services.throttle import LoginThrottle
+from app.store.db import make_engine, migrate, protect_data, session_scope
 from app.store.files import FileStore
 from app.viewer.service import start_viewer, stop_viewer
 
@@ -41,6 +43,8 @@ def startup(app: FastAPI) -> None:
     """Migrate the database, then load the example library (idempotent)."""
     settings: Settings = app.state.settings
     migrate(app.state.engine)
+    protect_data(settings.data_dir, settings.database_url)
+    dummy_hash()  # made once now, so that the first unknown name costs no more than a wrong password
     with session_scope(app.state.engine) as session:
         password = ensure_first_admin(session)
     if password:
@@ -88,6 +92,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.engine = make_engine(settings.database_url)
     app.state.files = FileStore(settings.files_dir)
+    app.state.login_throttle = LoginThrottle(free=settings.login_free_failures)
 
     @app.exception_handler(ServiceError)
     async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
@@ -132,6 +137,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.include_router(router, prefix=API_PREFIX, dependencies=[Depends(path_ids_in_range)])
     # auth, origin and size are checked before any body is read
     app.add_middleware(RequestGuard, fastapi_app=app, routes=route_table(api_routers, API_PREFIX))
+    app.add_middleware(SecurityHeaders)  # outermost: every answer carries them, refusals included
     app.include_router(pages.router)  # operator pages, /static, /viewer relay
     return app
 
