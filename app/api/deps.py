@@ -74,10 +74,16 @@ def refusal(principal: Principal | None, had_token: bool, guard: str) -> tuple[i
     return None
 
 
-def _refuse(principal: Principal | None, had_token: bool, guard: str) -> None:
+def _refuse(principal: Principal | None, had_token: bool, guard: str, request: Request | None = None) -> None:
     why = refusal(principal, had_token, guard)
-    if why is not None:
-        raise HTTPException(why[0], why[1], headers={"WWW-Authenticate": "Bearer"} if why[0] == 401 else None)
+    if why is None:
+        return
+    if why[0] == 403 and request is not None:  # role refusals are audited (reads included)
+        from app.services.audit import audit_refusal
+
+        audit_refusal(request.app.state.engine, principal.label(), f"{request.method} {request.url.path}",
+                      request.client.host if request.client else "unknown", why[1])
+    raise HTTPException(why[0], why[1], headers={"WWW-Authenticate": "Bearer"} if why[0] == 401 else None)
 
 
 def get_principal(request: Request, session: SessionDep,
@@ -88,14 +94,14 @@ def get_principal(request: Request, session: SessionDep,
     return principal
 
 
-def require_admin(principal: Annotated[Principal, Depends(get_principal)]) -> Principal:
-    _refuse(principal, True, GUARD_ADMIN)
+def require_admin(request: Request, principal: Annotated[Principal, Depends(get_principal)]) -> Principal:
+    _refuse(principal, True, GUARD_ADMIN, request)
     return principal
 
 
-def require_person(principal: Annotated[Principal, Depends(get_principal)]) -> Principal:
+def require_person(request: Request, principal: Annotated[Principal, Depends(get_principal)]) -> Principal:
     """Adjust, confirm and export need a signed-in operator or admin, never an API key."""
-    _refuse(principal, True, GUARD_PERSON)
+    _refuse(principal, True, GUARD_PERSON, request)
     return principal
 
 

@@ -31,6 +31,7 @@ from starlette.requests import cookie_parser
 
 from app.api.deps import GUARD_ADMIN, GUARD_ANY, GUARD_PERSON, get_principal, refusal, require_admin, \
     require_person, token_of
+from app.services.audit import audit_refusal
 
 SAFE_METHODS = ("GET", "HEAD", "OPTIONS", "TRACE")
 # sign-in has no caller yet; sign-out only ends the caller's own session (refused cross-origin below)
@@ -156,6 +157,10 @@ class RequestGuard:
         if rule is not None and rule.guard is not None and path not in OPEN_PATHS:
             principal = await anyio.to_thread.run_sync(_resolve, state.engine, token) if token else None
             why = refusal(principal, bool(token), rule.guard)
+            if why is not None and why[0] == 403:
+                client = scope.get("client") or ("unknown", 0)
+                await anyio.to_thread.run_sync(audit_refusal, state.engine, principal.label(),
+                                               f"{scope['method']} {path}", client[0], why[1])
             if why is not None:
                 await _answer(send, why[0], why[1], {"www-authenticate": "Bearer"} if why[0] == 401 else None)
                 return

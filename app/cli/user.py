@@ -81,7 +81,7 @@ def _change(command: str, change) -> int:
 
 
 def _audit(session, action: str, **detail) -> None:
-    from app.services.export import audit
+    from app.services.audit import audit
 
     audit(session, _actor(), action, **detail)
 

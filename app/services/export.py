@@ -14,18 +14,15 @@ from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
 
 from app.machine import ControllerError, WorkOffset, make_controller, slot_number
+from app.services.audit import audit
 from app.services.errors import Conflict, Invalid, Unavailable
 from app.services.machines import get_machine
 from app.services.setups import get_setup
-from app.store.models import AuditEntry, Export, utcnow
+from app.store.models import Export, utcnow
 
 log = logging.getLogger(__name__)
 
 
-def audit(session: Session, actor: str, action: str, *, setup_id: int | None = None,
-          machine_id: int | None = None, **detail) -> None:
-    session.add(AuditEntry(actor=actor, action=action, setup_id=setup_id, machine_id=machine_id, detail=detail))
-    session.flush()
 
 
 def plausibility(setup, machine, settings) -> tuple[WorkOffset, dict]:

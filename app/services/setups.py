@@ -15,6 +15,7 @@ import numpy as np
 from sqlmodel import Session, col, select
 
 from app.services import library
+from app.services.audit import audit
 from app.services.cameras import decode_image, get_camera, grab_frame
 from app.services.errors import Conflict, Invalid, NotFound
 from app.services.jobs import JobContext
@@ -359,6 +360,10 @@ def adjust_object(session: Session, files: FileStore, settings, setup_id: int, *
     _new_revision(s, result, "adjusted", by)
     session.add(s)
     session.flush()
+    moved = result["objects"][object_index]
+    audit(session, by or "?", "setup.adjust", setup_id=s.id, machine_id=s.machine_id, object_index=object_index,
+          result_revision=s.result_revision, nudge=nudge, T_table_obj=moved["T_table_obj"],
+          uncertainty_pass=moved["uncertainty_pass"], reason=moved["uncertainty_reason"])
     return s
 
 
@@ -402,6 +407,8 @@ def choose_datum(session: Session, files: FileStore, settings, setup_id: int, *,
     _new_revision(s, result, f"datum chosen: pose {choice + 1} of {len(cands)}", by)
     session.add(s)
     session.flush()
+    audit(session, by or "?", "setup.datum", setup_id=s.id, machine_id=s.machine_id, object_index=object_index,
+          choice=choice, result_revision=s.result_revision)
     return s
 
 
@@ -421,6 +428,8 @@ def confirm_setup(session: Session, setup_id: int, *, result_revision: int, by: 
     s.updated_at = utcnow()
     session.add(s)
     session.flush()
+    audit(session, by, "setup.confirm", setup_id=s.id, machine_id=s.machine_id, result_revision=result_revision,
+          offset=(s.result or {}).get("offset"))
     return s
 
 
@@ -457,4 +466,6 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
     _new_revision(s, result, "refined from the operator's pose", by)
     session.add(s)
     session.flush()
+    audit(session, by or "?", "setup.refine", setup_id=s.id, machine_id=s.machine_id, object_index=object_index,
+          result_revision=s.result_revision)
     return s

@@ -31,7 +31,7 @@ from sqlmodel import Session, col, select
 from app.machine import ControllerError, WorkOffset, make_controller, slot_number
 from app.services.cameras import decode_image, get_camera, grab_frame
 from app.services.errors import Conflict, Invalid, NotFound, Unavailable
-from app.services.export import audit
+from app.services.audit import audit
 from app.services.machines import get_machine
 from app.store.files import FileStore
 from app.store.models import SheetAlignment, SheetBedPose, SheetMonitor, SheetMonitorEvent, utcnow

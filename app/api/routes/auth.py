@@ -10,7 +10,7 @@ from pydantic import BaseModel, Field
 
 from app.api.deps import SESSION_COOKIE, AdminPrincipal, CurrentPrincipal, SessionDep, SettingsDep
 from app.services import access
-from app.services.export import audit
+from app.services.audit import audit
 
 router = APIRouter(tags=["auth"])
 log = logging.getLogger(__name__)
