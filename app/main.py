@@ -22,6 +22,7 @@ from app.config import Settings, get_settings
 from app.services.access import dummy_hash, ensure_first_admin
 from app.services.errors import ServiceError
 from app.services.events import EventBus
+from app.services.export import reconcile_open_exports
 from app.services.jobs import JobContext, JobRunner
 from app.services.setups import run_setup_job, unfinished_setup_ids
 from app.services.throttle import LoginThrottle
@@ -61,6 +62,8 @@ def startup(app: FastAPI) -> None:
     with session_scope(app.state.engine) as session:
         for setup_id in unfinished_setup_ids(session):
             app.state.jobs.submit(run_setup_job, setup_id)
+    # exports a previous run left pending / writing / unknown are settled by reading the controllers back
+    app.state.jobs.submit(reconcile_open_exports)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
