@@ -31,6 +31,9 @@ class Settings(BaseSettings):
     max_image_pixels: int = Field(default=50_000_000, gt=0, validation_alias="SETUPCAM_MAX_IMAGE_PIXELS",
                                   description="Pixels (width x height, read from the header before decoding) an "
                                               "uploaded image may have; above: 413.")
+    max_request_pixels: int = Field(default=250_000_000, gt=0, validation_alias="SETUPCAM_MAX_REQUEST_PIXELS",
+                                    description="Pixels of all images of one request together (a calibration or "
+                                                "rotary run decodes them all); above: 413 before decoding.")
     max_request_mb: float = Field(default=256.0, gt=0, validation_alias="SETUPCAM_MAX_REQUEST_MB",
                                   description="Whole body of an upload request (several images); above: 413 "
                                               "before the body is read.")

@@ -44,10 +44,18 @@ async def read_image_upload(upload: UploadFile, settings, what: str) -> bytes:
 
 
 async def read_uploads(uploads: list[UploadFile], settings) -> list[tuple[str, bytes]]:
-    """(file name, bytes) of several uploaded images, in order, each checked like one image."""
-    out = []
+    """(file name, bytes) of several uploaded images, in order, each checked like one image and all
+    together against ``settings.max_request_pixels`` (they are decoded side by side)."""
+    out, pixels = [], 0
     for f in uploads:
-        out.append((f.filename or f"image{len(out)}", await read_image_upload(f, settings, f"image {f.filename!r}")))
+        what = f"image {f.filename!r}"
+        data = await read_image_upload(f, settings, what)
+        w, h = check_image_size(data, settings.max_image_pixels)
+        pixels += w * h
+        if pixels > settings.max_request_pixels:
+            raise TooLarge(f"the {len(out) + 1} images up to {what} have {pixels:,} px together; one request "
+                           f"takes at most {settings.max_request_pixels:,} px")
+        out.append((f.filename or f"image{len(out)}", data))
     return out
 
 

@@ -83,6 +83,15 @@ def test_pixel_limit_is_a_setting(tmp_path):
         assert r.status_code == 404, r.text  # within the limit: on to the next check
 
 
+def test_images_of_one_request_are_bounded_together(tmp_path):
+    from tests.support.live_server import live_server
+
+    with live_server(tmp_path, max_request_pixels=1000, load_example_library=False) as srv, srv.client("mes") as c:
+        r = c.post("/api/v1/rotary/runs", data={"camera_id": "1", "angles_deg": "0,10"},
+                   files=[("images", ("a.png", SMALL_PNG, "image/png")), ("images", ("b.png", SMALL_PNG, "image/png"))])
+    assert r.status_code == 413 and "the 2 images up to image 'b.png' have 1,200 px together; one request takes at most 1,000 px" in r.json()["detail"], r.text
+
+
 def _raw(server, method: str, path: str, headers: dict, body: bytes | None = None) -> tuple[int, dict]:
     """Send the headers (and ``body`` if given) and read the answer: a declared body need not follow."""
     conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=10)
