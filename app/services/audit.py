@@ -15,14 +15,20 @@ def audit(session: Session, actor: str, action: str, *, setup_id: int | None = N
     session.flush()
 
 
-def audit_refusal(engine, actor: str, what: str, address: str, reason: str) -> None:
-    """A role refusal (403) on record, in a transaction of its own (the refused request's is rolled back)."""
+def audit_apart(engine, actor: str, action: str, *, setup_id: int | None = None, machine_id: int | None = None,
+                **detail) -> None:
+    """An entry in a transaction of its own: for refusals, whose request's transaction is rolled back."""
     from app.store.db import session_scope
 
     try:
         with session_scope(engine) as session:
-            audit(session, actor, "access.refused", request=what[:300], address=address, reason=reason[:300])
+            audit(session, actor, action, setup_id=setup_id, machine_id=machine_id, **detail)
     except Exception:  # noqa: BLE001 - the refusal stands even when the log cannot be written
         import logging
 
-        logging.getLogger(__name__).exception("audit of a refusal failed")
+        logging.getLogger(__name__).exception("audit of a refusal failed", extra={"action": action})
+
+
+def audit_refusal(engine, actor: str, what: str, address: str, reason: str) -> None:
+    """A role refusal (403) on record."""
+    audit_apart(engine, actor, "access.refused", request=what[:300], address=address, reason=reason[:300])

@@ -15,7 +15,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, col, select
 
 from app.machine import ControllerError, WorkOffset, make_controller, slot_number
-from app.services.audit import audit
+from app.services.audit import audit, audit_apart
 from app.services.errors import Conflict, Invalid, Unavailable
 from app.services.machines import get_machine
 from app.services.setups import get_setup
@@ -122,6 +122,20 @@ def reconcile_open_exports(ctx) -> list[int]:
 
 def export_offset(session: Session, settings, events, setup_id: int, *, slot: str, actor: str,
                   acknowledge_change: bool = False, idempotency_key: str | None = None) -> Export:
+    """Write the confirmed offset (see the states above). A refusal before any row exists (not confirmed,
+    implausible, bad slot) is audited as ``export.refused`` in a transaction of its own."""
+    try:
+        return _export(session, settings, events, setup_id, slot=slot, actor=actor,
+                       acknowledge_change=acknowledge_change, idempotency_key=idempotency_key)
+    except (Invalid, Conflict) as exc:
+        if not getattr(exc, "audited", False):
+            audit_apart(session.get_bind(), actor, "export.refused", setup_id=setup_id, slot=slot[:20],
+                        reason=exc.detail[:1000])
+        raise
+
+
+def _export(session: Session, settings, events, setup_id: int, *, slot: str, actor: str,
+            acknowledge_change: bool, idempotency_key: str | None) -> Export:
     setup = get_setup(session, setup_id)
     slot = slot.strip().upper()
     try:
@@ -191,7 +205,9 @@ def export_offset(session: Session, settings, events, setup_id: int, *, slot: st
                    "acknowledge_change=true if this is intended")
             row.before = before.as_dict()
             _settle(session, row, "failed", f"refused, nothing written: {why}", actor, machine.id)
-            raise Conflict(why)
+            refused = Conflict(why)
+            refused.audited = True  # the row and its export.failed entry say it already
+            raise refused
         row.status, row.written, row.before, row.updated_at = "writing", offset.as_dict(), before.as_dict(), utcnow()
         session.add(row)
         audit(session, actor, "export.write", setup_id=setup_id, machine_id=machine.id, slot=slot,

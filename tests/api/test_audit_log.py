@@ -21,6 +21,8 @@ def test_security_relevant_actions_are_audited_and_exported(server):
         assert c.post(f"/api/v1/setups/{sid}/adjust", json={"object_index": 0, "nudge": {"dx_mm": 5}}).status_code == 200
         assert c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": 2}).status_code == 200
         assert c.patch(f"/api/v1/machines/{m['id']}", json={"name": "x"}).status_code == 403   # refused
+        r = c.post(f"/api/v1/setups/{sid}/export", json={"slot": "G54"})   # no controller: refused
+        assert r.status_code == 422
     with server.client("mes") as c:
         assert c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": 2}).status_code == 403
     with server.client("admin") as c:
@@ -34,7 +36,8 @@ def test_security_relevant_actions_are_audited_and_exported(server):
     adjust = next(e for e in setup_entries if e["action"] == "setup.adjust")
     assert adjust["actor"] == "test-operator (operator)" and adjust["detail"]["nudge"]["dx_mm"] == 5
     assert adjust["detail"]["uncertainty_pass"] is False and "moved +5.00 mm" in adjust["detail"]["reason"]
-    assert [e["action"] for e in setup_entries][:2] == ["setup.confirm", "setup.adjust"]
+    assert [e["action"] for e in setup_entries][:3] == ["export.refused", "setup.confirm", "setup.adjust"]
+    assert "no controller configured" in setup_entries[0]["detail"]["reason"]
     who = {(e["actor"], e["detail"]["request"]) for e in refusals}
     assert ("test-operator (operator)", f"PATCH /api/v1/machines/{m['id']}") in who
     assert ("test mes (mes key)", f"POST /api/v1/setups/{sid}/confirm") in who
