@@ -49,6 +49,9 @@ class Settings(BaseSettings):
                                 description="1-sigma position uncertainty (x, y, z) a result may have to pass.")
     max_sigma_deg: float = Field(default=0.05, validation_alias="SETUPCAM_MAX_SIGMA_DEG",
                                  description="1-sigma rotation uncertainty about z a result may have to pass.")
+    export_watch_s: float = Field(default=30.0, gt=0, validation_alias="SETUPCAM_EXPORT_WATCH_S",
+                                  description="How often exports open for over 60 s are settled by reading the "
+                                              "controller back.")
     max_adjust_mm: float = Field(default=1.0, gt=0, validation_alias="SETUPCAM_MAX_ADJUST_MM",
                                  description="An operator's move of a fitted part beyond this (or beyond 3 sigma) "
                                              "fails the uncertainty check until the part is refined.")

@@ -22,7 +22,7 @@ from app.config import Settings, get_settings
 from app.services.access import dummy_hash, ensure_first_admin
 from app.services.errors import ServiceError
 from app.services.events import EventBus
-from app.services.export import reconcile_open_exports
+from app.services.export import ExportWatch, reconcile_open_exports
 from app.services.jobs import JobContext, JobRunner
 from app.services.setups import run_setup_job, unfinished_setup_ids
 from app.services.throttle import LoginThrottle
@@ -64,6 +64,7 @@ def startup(app: FastAPI) -> None:
             app.state.jobs.submit(run_setup_job, setup_id)
     # exports a previous run left pending / writing / unknown are settled by reading the controllers back
     app.state.jobs.submit(reconcile_open_exports)
+    app.state.export_watch = ExportWatch(app.state.jobs.ctx, settings.export_watch_s).start()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -80,6 +81,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         monitors = getattr(app.state, "sheet_monitors", None)
         if monitors is not None:
             monitors.shutdown()
+        app.state.export_watch.stop()
         app.state.jobs.shutdown()
         app.state.events.close()
         app.state.engine.dispose()

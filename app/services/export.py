@@ -95,8 +95,9 @@ def reconcile(session: Session, row: Export, controller, machine_id: int | None,
                    back)
 
 
-def reconcile_open_exports(ctx) -> list[int]:
-    """At start-up (a job): settle every export a previous run left pending, writing or unknown."""
+def reconcile_open_exports(ctx, stale_s: float = 0.0, actor: str = "reconcile at start-up") -> list[int]:
+    """Settle every export left pending, writing or unknown for at least ``stale_s`` seconds: at
+    start-up (0: all a previous run left) and by :class:`ExportWatch` (the timeout)."""
     from app.store.db import session_scope
     from app.store.models import Setup
 
@@ -104,6 +105,8 @@ def reconcile_open_exports(ctx) -> list[int]:
     with session_scope(ctx.engine) as session:
         rows = session.exec(select(Export).where(col(Export.status).in_(OPEN_STATES))).all()
         for row in rows:
+            if _age_s(row) < stale_s:
+                continue  # under way right now
             setup = session.get(Setup, row.setup_id)
             machine = get_machine(session, setup.machine_id) if setup else None
             if machine is None or not machine.controller:
@@ -112,12 +115,39 @@ def reconcile_open_exports(ctx) -> list[int]:
                 continue
             controller = make_controller(machine.controller)
             try:
-                reconcile(session, row, controller, machine.id, "reconcile at start-up")
+                reconcile(session, row, controller, machine.id, actor)
             finally:
                 controller.close()
             log.info("export reconciled", extra={"export_id": row.id, "status": row.status})
             settled.append(row.id)
     return settled
+
+
+class ExportWatch:
+    """A thread in the service: every ``interval_s`` it settles exports open for longer than
+    WRITING_TIMEOUT_S (a request that hung, an unknown outcome) by reading the controllers back."""
+
+    def __init__(self, ctx, interval_s: float = 30.0):
+        import threading
+
+        self.ctx, self.interval_s = ctx, interval_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="export-watch", daemon=True)
+
+    def start(self) -> "ExportWatch":
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.interval_s):
+            try:
+                reconcile_open_exports(self.ctx, stale_s=WRITING_TIMEOUT_S, actor="reconcile after timeout")
+            except Exception:  # noqa: BLE001 - keep watching; the next round tries again
+                log.exception("export watch: reconciliation failed")
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
 
 
 def export_offset(session: Session, settings, events, setup_id: int, *, slot: str, actor: str,

@@ -239,3 +239,39 @@ def _swallow(fn) -> None:
         fn()
     except Exception:  # noqa: BLE001 - the server is killed under this request
         pass
+
+
+def test_an_export_open_too_long_is_settled_while_the_service_runs(tmp_path, lcnc):
+    """No restart needed: an export left 'writing' (a request that hung) for longer than the timeout is
+    read back by the service's export watch."""
+    from datetime import timedelta
+
+    from app.store.models import utcnow
+
+    with live_server_for(tmp_path, export_watch_s=0.3) as srv:
+        with srv.client("admin") as c:
+            machine = make_machine(c, lcnc.settings)
+        sid, off = _confirmed(srv, machine["id"], 108.5)
+        fresh = _left_open(srv, sid, "G57", "writing", off)
+        sid2, off2 = _confirmed(srv, machine["id"], 109.5)
+        stale = _left_open(srv, sid2, "G58", "writing", off2)
+        with session_scope(srv.app.state.engine) as session:
+            row = session.get(Export, stale)
+            row.updated_at = utcnow() - timedelta(seconds=120)
+            session.add(row)
+        for _ in range(100):
+            rows = _rows(srv)
+            if rows[stale].status != "writing":
+                break
+            time.sleep(0.1)
+        assert rows[stale].status in ("written", "failed") and rows[stale].read_back is not None, rows[stale]
+        assert rows[fresh].status == "writing", "one under way now is left alone"
+        with session_scope(srv.app.state.engine) as session:
+            actors = {e.actor for e in session.query(AuditEntry).filter(AuditEntry.setup_id == sid2)}
+        assert "reconcile after timeout" in actors
+
+
+def live_server_for(tmp_path, **kw):
+    from tests.support.live_server import live_server
+
+    return live_server(tmp_path, load_example_library=False, **kw)
