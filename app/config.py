@@ -28,6 +28,19 @@ class Settings(BaseSettings):
     load_example_library: bool = Field(default=True, validation_alias="SETUPCAM_LOAD_EXAMPLES")
     max_upload_mb: float = Field(default=64.0, validation_alias="SETUPCAM_MAX_UPLOAD_MB")
     max_mesh_faces: int = Field(default=2_000_000, validation_alias="SETUPCAM_MAX_MESH_FACES")
+    max_image_pixels: int = Field(default=50_000_000, gt=0, validation_alias="SETUPCAM_MAX_IMAGE_PIXELS",
+                                  description="Pixels (width x height, read from the header before decoding) an "
+                                              "uploaded image may have; above: 413.")
+    max_request_pixels: int = Field(default=250_000_000, gt=0, validation_alias="SETUPCAM_MAX_REQUEST_PIXELS",
+                                    description="Pixels of all images of one request together (a calibration or "
+                                                "rotary run decodes them all); above: 413 before decoding.")
+    max_request_mb: float = Field(default=256.0, gt=0, validation_alias="SETUPCAM_MAX_REQUEST_MB",
+                                  description="Whole body of an upload request (several images); above: 413 "
+                                              "before the body is read.")
+    max_json_kb: float = Field(default=1024.0, gt=0, validation_alias="SETUPCAM_MAX_JSON_KB",
+                               description="Body of a JSON (or text) request; above: 413 before it is read.")
+    max_json_depth: int = Field(default=32, gt=0, validation_alias="SETUPCAM_MAX_JSON_DEPTH",
+                                description="Nesting of arrays/objects a JSON body may have; deeper: 422.")
     workers: int = Field(default=1, validation_alias="SETUPCAM_WORKERS",
                          description="Background job threads in the service process.")
     max_tilt_deg: float = Field(default=0.2, validation_alias="SETUPCAM_MAX_TILT_DEG",
@@ -36,6 +49,13 @@ class Settings(BaseSettings):
                                 description="1-sigma position uncertainty (x, y, z) a result may have to pass.")
     max_sigma_deg: float = Field(default=0.05, validation_alias="SETUPCAM_MAX_SIGMA_DEG",
                                  description="1-sigma rotation uncertainty about z a result may have to pass.")
+    export_watch_s: float = Field(default=30.0, gt=0, validation_alias="SETUPCAM_EXPORT_WATCH_S",
+                                  description="How often exports open for over 60 s are settled by reading the "
+                                              "controller back.")
+    max_adjust_mm: float = Field(default=1.0, gt=0, validation_alias="SETUPCAM_MAX_ADJUST_MM",
+                                 description="An operator's move of a fitted part beyond this (or beyond 3 sigma) "
+                                             "fails the uncertainty check until the part is refined.")
+    max_adjust_deg: float = Field(default=0.5, gt=0, validation_alias="SETUPCAM_MAX_ADJUST_DEG")
     max_offset_change_mm: float = Field(default=5.0, validation_alias="SETUPCAM_MAX_OFFSET_CHANGE_MM",
                                         description="Export needs an acknowledgement when X/Y/Z change more than this.")
     max_offset_change_deg: float = Field(default=2.0, validation_alias="SETUPCAM_MAX_OFFSET_CHANGE_DEG")
@@ -45,6 +65,15 @@ class Settings(BaseSettings):
     mqtt_url: str = Field(default="", validation_alias="SETUPCAM_MQTT_URL",
                           description="e.g. mqtt://127.0.0.1:1883; events go to <topic prefix>/<event type>")
     mqtt_topic_prefix: str = Field(default="setupcam", validation_alias="SETUPCAM_MQTT_TOPIC_PREFIX")
+    allowed_origins: list[str] = Field(default_factory=list, validation_alias="SETUPCAM_ALLOWED_ORIGINS",
+                                       description='JSON list of extra origins (e.g. ["https://cell2.example"]) '
+                                                   "whose pages may write with the session cookie; the service's "
+                                                   "own Host always may.")
+    login_free_failures: int = Field(default=5, ge=1, validation_alias="SETUPCAM_LOGIN_FREE_FAILURES",
+                                     description="Failed sign-ins per name or address before each further attempt "
+                                                 "waits (60 s, doubling per failure, at most 15 min).")
+    cookie_secure: bool = Field(default=False, validation_alias="SETUPCAM_COOKIE_SECURE",
+                                description="Mark the session cookie Secure (set it when served over HTTPS).")
     log_json: bool = Field(default=True, validation_alias="SETUPCAM_LOG_JSON")
 
     @model_validator(mode="after")

@@ -7,20 +7,26 @@ import logging
 import sys
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.routing import APIRoute
+from sqlalchemy.exc import DataError
 
 import app as app_pkg
+from app.api.deps import path_ids_in_range
+from app.api.headers import SecurityHeaders
+from app.api.limits import RequestGuard, route_table
 from app.api.routes import audit, auth, cameras, health, machines, models, pages, planning, rotary, setups, sheet
 from app.config import Settings, get_settings
-from app.services.access import ensure_first_admin
+from app.services.access import dummy_hash, ensure_first_admin
 from app.services.errors import ServiceError
 from app.services.events import EventBus
+from app.services.export import ExportWatch, reconcile_open_exports
 from app.services.jobs import JobContext, JobRunner
 from app.services.setups import run_setup_job, unfinished_setup_ids
-from app.store.db import make_engine, migrate, session_scope
+from app.services.throttle import LoginThrottle
+from app.store.db import make_engine, migrate, protect_data, session_scope
 from app.store.files import FileStore
 from app.viewer.service import start_viewer, stop_viewer
 
@@ -38,6 +44,8 @@ def startup(app: FastAPI) -> None:
     """Migrate the database, then load the example library (idempotent)."""
     settings: Settings = app.state.settings
     migrate(app.state.engine)
+    protect_data(settings.data_dir, settings.database_url)
+    dummy_hash()  # made once now, so that the first unknown name costs no more than a wrong password
     with session_scope(app.state.engine) as session:
         password = ensure_first_admin(session)
     if password:
@@ -54,6 +62,9 @@ def startup(app: FastAPI) -> None:
     with session_scope(app.state.engine) as session:
         for setup_id in unfinished_setup_ids(session):
             app.state.jobs.submit(run_setup_job, setup_id)
+    # exports a previous run left pending / writing / unknown are settled by reading the controllers back
+    app.state.jobs.submit(reconcile_open_exports)
+    app.state.export_watch = ExportWatch(app.state.jobs.ctx, settings.export_watch_s).start()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -70,6 +81,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         monitors = getattr(app.state, "sheet_monitors", None)
         if monitors is not None:
             monitors.shutdown()
+        app.state.export_watch.stop()
         app.state.jobs.shutdown()
         app.state.events.close()
         app.state.engine.dispose()
@@ -85,6 +97,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.engine = make_engine(settings.database_url)
     app.state.files = FileStore(settings.files_dir)
+    app.state.login_throttle = LoginThrottle(free=settings.login_free_failures)
 
     @app.exception_handler(ServiceError)
     async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
@@ -100,16 +113,69 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return JSONResponse(status_code=422, content={"detail": f"{where}: {msg}" if where else msg,
                                                       "errors": jsonable_errors(errors)})
 
+    @app.exception_handler(OverflowError)
+    async def _overflow(_request: Request, _exc: OverflowError) -> JSONResponse:
+        # SQLite cannot bind an integer past 2^63: whatever it was looked up by does not exist
+        return JSONResponse(status_code=404, content={"detail": "not found: a number in the request is out of range "
+                                                                "for an id"})
+
+    @app.exception_handler(DataError)
+    async def _data_error(_request: Request, exc: DataError) -> JSONResponse:
+        # PostgreSQL refused a value (22003: integer out of range; 22001: text too long): the request's fault
+        code = getattr(getattr(exc, "orig", None), "sqlstate", "") or ""
+        if code == "22003":
+            return JSONResponse(status_code=404, content={"detail": "not found: a number in the request is out of "
+                                                                    "range for an id"})
+        return JSONResponse(status_code=422, content={"detail": f"a value does not fit the database ({code}): "
+                                                                f"{str(getattr(exc, 'orig', exc)).splitlines()[0]}"})
+
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error", extra={"path": request.url.path})
         return JSONResponse(status_code=500, content={"detail": "internal error; it has been logged"})
 
-    for router in (health.router, auth.router, models.router, cameras.router, machines.router, setups.router,
-                   audit.router, planning.router, rotary.router, sheet.router):
-        app.include_router(router, prefix=API_PREFIX)
+    install_error_schema(app)
+
+    api_routers = (health.router, auth.router, models.router, cameras.router, machines.router, setups.router,
+                   audit.router, planning.router, rotary.router, sheet.router)
+    for router in api_routers:
+        app.include_router(router, prefix=API_PREFIX, dependencies=[Depends(path_ids_in_range)])
+    # auth, origin and size are checked before any body is read
+    app.add_middleware(RequestGuard, fastapi_app=app, routes=route_table(api_routers, API_PREFIX))
+    app.add_middleware(SecurityHeaders)  # outermost: every answer carries them, refusals included
     app.include_router(pages.router)  # operator pages, /static, /viewer relay
     return app
+
+
+PROBLEM_SCHEMA = {
+    "title": "Problem", "type": "object", "required": ["detail"],
+    "properties": {
+        "detail": {"type": "string", "description": "Why, in one sentence (the first problem for a 422)"},
+        "errors": {"type": "array", "items": {"$ref": "#/components/schemas/ValidationError"},
+                   "description": "422 from request validation: every problem, for machines"},
+    },
+}
+
+
+def install_error_schema(app: FastAPI) -> None:
+    """The OpenAPI says what errors really look like: ``{"detail": "<sentence>", "errors": [...]}``
+    (FastAPI's default says ``detail`` is an array); every declared 4xx/5xx answer gets that schema."""
+    generate = app.openapi
+
+    def openapi() -> dict:
+        if app.openapi_schema is None:
+            schema = generate()
+            schemas = schema.setdefault("components", {}).setdefault("schemas", {})
+            schemas["HTTPValidationError"] = PROBLEM_SCHEMA
+            ref = {"$ref": "#/components/schemas/HTTPValidationError"}
+            for item in schema.get("paths", {}).values():
+                for op in item.values():
+                    for code, resp in op.get("responses", {}).items():
+                        if code[0] in "45" and "content" not in resp:
+                            resp["content"] = {"application/json": {"schema": ref}}
+        return app.openapi_schema
+
+    app.openapi = openapi
 
 
 def jsonable_errors(errors: list) -> list:

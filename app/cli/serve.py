@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,5 +29,24 @@ def run(args: argparse.Namespace) -> int:
         os.environ["SETUPCAM_VISER_PORT"] = str(args.viser_port)
     settings = Settings()
     configure_logging(settings.log_json)
-    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_config=None, access_log=False)
+    app = create_app(settings)
+    why = database_unreachable(app.state.engine)
+    if why:  # a sentence, not a traceback from deep inside the start-up
+        print(f"setupcam serve: {why}", file=sys.stderr)
+        return 1
+    uvicorn.run(app, host=args.host, port=args.port, log_config=None, access_log=False)
     return 0
+
+
+def database_unreachable(engine) -> str | None:
+    """None when the database answers, else one sentence: where, and what it said."""
+    from sqlalchemy import text
+
+    try:
+        with engine.connect() as conn:
+            conn.execute(text("SELECT 1"))
+        return None
+    except Exception as exc:  # noqa: BLE001 - any refusal becomes the sentence
+        where = engine.url.render_as_string(hide_password=True)
+        said = str(getattr(exc, "orig", None) or exc).strip().splitlines()[0][:300]
+        return f"cannot reach the database at {where}: {said} (check DATABASE_URL and that the server is running)"

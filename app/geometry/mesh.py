@@ -177,7 +177,9 @@ def load_mesh(
         if file_type == "gltf":
             _check_gltf_self_contained(data)
         try:
-            scene = trimesh.load(io.BytesIO(data), file_type=file_type, force="scene", process=False)
+            # geometry only: an embedded texture would be decoded by Pillow (a 109 KB PNG can be 900 MP)
+            extra = {"skip_materials": True} if file_type in ("glb", "gltf") else {}
+            scene = trimesh.load(io.BytesIO(data), file_type=file_type, force="scene", process=False, **extra)
         except MeshError:
             raise
         except Exception as exc:  # noqa: BLE001 - any parser failure becomes a 422 with its reason

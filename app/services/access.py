@@ -21,6 +21,7 @@ import logging
 import secrets
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
+from functools import lru_cache
 
 from sqlmodel import Session, col, select
 
@@ -113,10 +114,18 @@ def revoke_api_key(session: Session, key_id: int) -> None:
     session.add(row)
 
 
+@lru_cache(maxsize=1)
+def dummy_hash() -> str:
+    """A hash no password matches: an unknown name costs the same scrypt work as a wrong password."""
+    return hash_password(secrets.token_urlsafe(24))
+
+
 def login(session: Session, name: str, password: str) -> tuple[User, str, datetime] | None:
-    """Check a password; on success make a session token (returned once) valid for SESSION_HOURS."""
+    """Check a password; on success make a session token (returned once) valid for SESSION_HOURS.
+    Unknown, disabled and wrong all take the same time and answer the same None (no enumeration)."""
     user = session.exec(select(User).where(User.name == name, col(User.disabled_at).is_(None))).first()
-    if user is None or not verify_password(password, user.password_hash):
+    ok = verify_password(password, user.password_hash if user is not None else dummy_hash())
+    if user is None or not ok:
         return None
     token = "scs_" + secrets.token_urlsafe(32)
     expires = datetime.now(timezone.utc) + timedelta(hours=SESSION_HOURS)
@@ -156,3 +165,53 @@ def ensure_first_admin(session: Session) -> str | None:
         return None
     _, password = create_user(session, "admin", "admin")
     return password
+
+
+# ------------------------------------------------------------------------ account management (CLI, admin)
+def find_user(session: Session, name: str) -> User:
+    from app.services.errors import NotFound
+
+    user = session.exec(select(User).where(User.name == name)).first()
+    if user is None:
+        raise NotFound(f"no user {name!r}")
+    return user
+
+
+def list_users(session: Session) -> list[User]:
+    return list(session.exec(select(User).order_by(User.id)).all())
+
+
+def end_sessions(session: Session, user_id: int) -> int:
+    """Sign a user out everywhere; returns how many sessions ended."""
+    rows = session.exec(select(LoginSession).where(LoginSession.user_id == user_id)).all()
+    for row in rows:
+        session.delete(row)
+    return len(rows)
+
+
+def disable_user(session: Session, name: str) -> User:
+    """The user can no longer sign in; open sessions end now. The row stays (audit trail names it)."""
+    user = find_user(session, name)
+    if user.disabled_at is None:
+        user.disabled_at = utcnow()
+        session.add(user)
+    end_sessions(session, user.id)
+    session.flush()
+    return user
+
+
+def set_password(session: Session, name: str, password: str | None = None) -> tuple[User, str]:
+    """A new password (random when None; shown once); open sessions end."""
+    user = find_user(session, name)
+    password = password or secrets.token_urlsafe(12)
+    if len(password) < 8:
+        raise Invalid("password must have at least 8 characters")
+    user.password_hash = hash_password(password)
+    session.add(user)
+    end_sessions(session, user.id)
+    session.flush()
+    return user, password
+
+
+def list_api_keys(session: Session) -> list[ApiKey]:
+    return list(session.exec(select(ApiKey).order_by(ApiKey.id)).all())

@@ -57,6 +57,8 @@ def list_cameras(session: Session) -> list[Camera]:
 
 def update_camera(session: Session, camera_id: int, changes: dict[str, Any]) -> Camera:
     cam = get_camera(session, camera_id)
+    if "name" in changes and changes["name"] is None:
+        raise Invalid("name: must not be null (leave it out to keep the current name)")
     if "name" in changes:
         cam.name = changes["name"]
     if "intrinsics" in changes:

@@ -9,23 +9,21 @@ export of the same revision to the same slot is answered from the first one, nev
 from __future__ import annotations
 
 import logging
+from datetime import datetime, timezone
 
 from sqlalchemy.exc import IntegrityError
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from app.machine import ControllerError, WorkOffset, make_controller, slot_number
+from app.services.audit import audit, audit_apart
 from app.services.errors import Conflict, Invalid, Unavailable
 from app.services.machines import get_machine
 from app.services.setups import get_setup
-from app.store.models import AuditEntry, Export, utcnow
+from app.store.models import Export, utcnow
 
 log = logging.getLogger(__name__)
 
 
-def audit(session: Session, actor: str, action: str, *, setup_id: int | None = None,
-          machine_id: int | None = None, **detail) -> None:
-    session.add(AuditEntry(actor=actor, action=action, setup_id=setup_id, machine_id=machine_id, detail=detail))
-    session.flush()
 
 
 def plausibility(setup, machine, settings) -> tuple[WorkOffset, dict]:
@@ -51,8 +49,123 @@ def plausibility(setup, machine, settings) -> tuple[WorkOffset, dict]:
     return WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"]), off
 
 
+# Export states: pending (on record, controller untouched) -> writing (committed before the write) ->
+# written (read back equal) | failed (not written: refused, unreachable, or read back different) |
+# unknown (the write or its read-back broke off: only reading the controller can tell). pending,
+# writing and unknown are settled by reading the slot back (reconcile), at start-up, before any retry,
+# and when a "writing" export is older than WRITING_TIMEOUT_S.
+OPEN_STATES = ("pending", "writing", "unknown")
+WRITING_TIMEOUT_S = 60.0
+
+
+def _age_s(row: Export) -> float:
+    at = row.updated_at if row.updated_at.tzinfo else row.updated_at.replace(tzinfo=timezone.utc)
+    return (datetime.now(timezone.utc) - at).total_seconds()
+
+
+def _settle(session: Session, row: Export, status: str, reason: str, actor: str, machine_id: int | None,
+            read_back: WorkOffset | None = None) -> Export:
+    row.status, row.reason, row.updated_at = status, reason, utcnow()
+    if read_back is not None:
+        row.read_back = read_back.as_dict()
+    session.add(row)
+    audit(session, actor, f"export.{status}", setup_id=row.setup_id, machine_id=machine_id, slot=row.slot,
+          export_id=row.id, written=row.written, read_back=row.read_back, reason=reason)
+    session.commit()
+    return row
+
+
+def reconcile(session: Session, row: Export, controller, machine_id: int | None, actor: str = "reconcile") -> Export:
+    """Settle an open export by reading the controller's slot: ``written`` when it holds what was to be
+    written (within the controller's rounding), ``failed`` when it does not (or nothing was written yet),
+    ``unknown`` while the controller cannot be read."""
+    try:
+        back = controller.read_offset(row.slot)
+    except ControllerError as exc:
+        return _settle(session, row, "unknown", f"outcome unknown and the controller cannot be read ({exc}); "
+                                                "it is read back again before any retry and at start-up",
+                       actor, machine_id)
+    if row.written:
+        wanted = WorkOffset(row.written["x_mm"], row.written["y_mm"], row.written["z_mm"], row.written["c_deg"])
+        if wanted.agrees_with(back, controller.rounding_mm, controller.rounding_deg):
+            return _settle(session, row, "written", "", actor, machine_id, back)
+        return _settle(session, row, "failed", f"not written: {row.slot} holds {back}, not {wanted}", actor,
+                       machine_id, back)
+    return _settle(session, row, "failed", "not written: the export stopped before the write", actor, machine_id,
+                   back)
+
+
+def reconcile_open_exports(ctx, stale_s: float = 0.0, actor: str = "reconcile at start-up") -> list[int]:
+    """Settle every export left pending, writing or unknown for at least ``stale_s`` seconds: at
+    start-up (0: all a previous run left) and by :class:`ExportWatch` (the timeout)."""
+    from app.store.db import session_scope
+    from app.store.models import Setup
+
+    settled = []
+    with session_scope(ctx.engine) as session:
+        rows = session.exec(select(Export).where(col(Export.status).in_(OPEN_STATES))).all()
+        for row in rows:
+            if _age_s(row) < stale_s:
+                continue  # under way right now
+            setup = session.get(Setup, row.setup_id)
+            machine = get_machine(session, setup.machine_id) if setup else None
+            if machine is None or not machine.controller:
+                _settle(session, row, "failed", "not written: the machine or its controller is gone", "reconcile",
+                        None)
+                continue
+            controller = make_controller(machine.controller)
+            try:
+                reconcile(session, row, controller, machine.id, actor)
+            finally:
+                controller.close()
+            log.info("export reconciled", extra={"export_id": row.id, "status": row.status})
+            settled.append(row.id)
+    return settled
+
+
+class ExportWatch:
+    """A thread in the service: every ``interval_s`` it settles exports open for longer than
+    WRITING_TIMEOUT_S (a request that hung, an unknown outcome) by reading the controllers back."""
+
+    def __init__(self, ctx, interval_s: float = 30.0):
+        import threading
+
+        self.ctx, self.interval_s = ctx, interval_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="export-watch", daemon=True)
+
+    def start(self) -> "ExportWatch":
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.interval_s):
+            try:
+                reconcile_open_exports(self.ctx, stale_s=WRITING_TIMEOUT_S, actor="reconcile after timeout")
+            except Exception:  # noqa: BLE001 - keep watching; the next round tries again
+                log.exception("export watch: reconciliation failed")
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
 def export_offset(session: Session, settings, events, setup_id: int, *, slot: str, actor: str,
-                  acknowledge_change: bool = False) -> Export:
+                  acknowledge_change: bool = False, idempotency_key: str | None = None) -> Export:
+    """Write the confirmed offset (see the states above). A refusal before any row exists (not confirmed,
+    implausible, bad slot) is audited as ``export.refused`` in a transaction of its own."""
+    try:
+        return _export(session, settings, events, setup_id, slot=slot, actor=actor,
+                       acknowledge_change=acknowledge_change, idempotency_key=idempotency_key)
+    except (Invalid, Conflict) as exc:
+        if not getattr(exc, "audited", False):
+            audit_apart(session.get_bind(), actor, "export.refused", setup_id=setup_id, slot=slot[:20],
+                        reason=exc.detail[:1000])
+        raise
+
+
+def _export(session: Session, settings, events, setup_id: int, *, slot: str, actor: str,
+            acknowledge_change: bool, idempotency_key: str | None) -> Export:
     setup = get_setup(session, setup_id)
     slot = slot.strip().upper()
     try:
@@ -67,10 +180,17 @@ def export_offset(session: Session, settings, events, setup_id: int, *, slot: st
     if setup.confirmed_revision != setup.result_revision:
         raise Conflict(f"setup {setup_id} was changed after confirmation (confirmed revision "
                        f"{setup.confirmed_revision}, current {setup.result_revision}); confirm again")
+    key = (idempotency_key or "").strip()[:100] or f"setup{setup_id}-r{setup.result_revision}-{slot}"
     done = session.exec(select(Export).where(Export.setup_id == setup_id, Export.slot == slot,
                                             Export.result_revision == setup.result_revision)).first()
-    if done is not None and done.status in ("verified", "writing"):
+    same_key = session.exec(select(Export).where(Export.idempotency_key == key)).first()
+    if same_key is not None and (done is None or same_key.id != done.id):
+        raise Conflict(f"idempotency key {key!r} belongs to export {same_key.id} (setup {same_key.setup_id}, "
+                       f"{same_key.slot}, revision {same_key.result_revision}), not to this one")
+    if done is not None and done.status == "written":
         return done  # a retry: answered from the first export, never written twice
+    if done is not None and done.status in ("pending", "writing") and _age_s(done) < WRITING_TIMEOUT_S:
+        return done  # under way right now
     machine = get_machine(session, setup.machine_id)
     if not machine.controller:
         raise Invalid(f"machine {machine.id} ({machine.name}) has no controller configured")
@@ -80,59 +200,72 @@ def export_offset(session: Session, settings, events, setup_id: int, *, slot: st
     except ValueError as exc:
         raise Invalid(f"machine {machine.id} controller settings: {exc}") from None
     try:
-        try:
-            before = controller.read_offset(slot)
-        except ControllerError as exc:
-            audit(session, actor, "export.unreachable", setup_id=setup_id, machine_id=machine.id, slot=slot,
-                  reason=str(exc))
-            session.commit()
-            events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": str(exc)})
-            raise Unavailable(f"{exc}; nothing was written") from None
-        d_mm, d_deg = offset.difference(before)
-        if (d_mm > settings.max_offset_change_mm or d_deg > settings.max_offset_change_deg) and not acknowledge_change:
-            raise Conflict(f"the new {slot} differs from the controller's current one by {d_mm:.3f} mm / "
-                           f"{d_deg:.3f}° (limits {settings.max_offset_change_mm} mm / "
-                           f"{settings.max_offset_change_deg}°); compare them and export again with "
-                           "acknowledge_change=true if this is intended")
+        if done is not None and done.status in OPEN_STATES:
+            # after a crash, a timeout or an unknown outcome: read back before writing anything again
+            reconcile(session, done, controller, machine.id, actor)
+            if done.status == "written":
+                return done
+            if done.status == "unknown":
+                raise Unavailable(f"export to {slot}: {done.reason}")
         row = done or Export(setup_id=setup_id, result_revision=setup.result_revision, slot=slot, actor=actor,
-                             status="writing")
-        row.status, row.written, row.before, row.actor = "writing", offset.as_dict(), before.as_dict(), actor
+                             status="pending")
+        row.status, row.actor, row.reason, row.idempotency_key = "pending", actor, "", key
+        row.written = row.read_back = None
+        row.updated_at = utcnow()
         session.add(row)
         try:
             session.flush()
         except IntegrityError:
             session.rollback()
             raise Conflict(f"an export of setup {setup_id} to {slot} is already under way") from None
-        audit(session, actor, "export.write", setup_id=setup_id, machine_id=machine.id, slot=slot,
-              before=before.as_dict(), written=offset.as_dict(), controller=controller.describe)
+        audit(session, actor, "export.attempt", setup_id=setup_id, machine_id=machine.id, slot=slot,
+              export_id=row.id, idempotency_key=key)
         session.commit()  # the attempt is on record before the controller is touched
         try:
-            controller.write_offset(slot, offset)
-            back = controller.read_offset(slot)
+            before = controller.read_offset(slot)
         except ControllerError as exc:
-            row.status, row.reason, row.updated_at = "failed", str(exc), utcnow()
-            session.add(row)
-            audit(session, actor, "export.failed", setup_id=setup_id, machine_id=machine.id, slot=slot,
-                  reason=str(exc))
-            session.commit()
-            log.error("export failed", extra={"setup_id": setup_id, "slot": slot, "reason": str(exc)})
+            _settle(session, row, "failed", f"controller unreachable ({exc}); nothing was written", actor, machine.id)
             events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": str(exc)})
-            raise Unavailable(f"export to {slot} failed: {exc}") from None
-        agree = offset.agrees_with(back, controller.rounding_mm, controller.rounding_deg)
-        row.read_back, row.updated_at = back.as_dict(), utcnow()
-        row.status = "verified" if agree else "mismatch"
-        row.reason = "" if agree else (f"read-back {back} differs from written {offset} beyond the controller's "
-                                       f"rounding ({controller.rounding_mm} mm, {controller.rounding_deg}°)")
+            raise Unavailable(f"{exc}; nothing was written") from None
+        d_mm, d_deg = offset.difference(before)
+        if (d_mm > settings.max_offset_change_mm or d_deg > settings.max_offset_change_deg) and not acknowledge_change:
+            why = (f"the new {slot} differs from the controller's current one by {d_mm:.3f} mm / "
+                   f"{d_deg:.3f}° (limits {settings.max_offset_change_mm} mm / "
+                   f"{settings.max_offset_change_deg}°); compare them and export again with "
+                   "acknowledge_change=true if this is intended")
+            row.before = before.as_dict()
+            _settle(session, row, "failed", f"refused, nothing written: {why}", actor, machine.id)
+            refused = Conflict(why)
+            refused.audited = True  # the row and its export.failed entry say it already
+            raise refused
+        row.status, row.written, row.before, row.updated_at = "writing", offset.as_dict(), before.as_dict(), utcnow()
         session.add(row)
-        audit(session, actor, "export.verified" if agree else "export.mismatch", setup_id=setup_id,
-              machine_id=machine.id, slot=slot, written=offset.as_dict(), read_back=back.as_dict())
-        session.commit()
-        if agree:
-            events.publish("offset.exported", {"setup_id": setup_id, "machine_id": machine.id, "slot": slot,
-                                               "written": offset.as_dict(), "read_back": back.as_dict()})
-        else:
-            log.error("export read-back mismatch", extra={"setup_id": setup_id, "reason": row.reason})
+        audit(session, actor, "export.write", setup_id=setup_id, machine_id=machine.id, slot=slot,
+              before=before.as_dict(), written=offset.as_dict(), controller=controller.describe)
+        session.commit()  # "writing" is on record before the write: a crash from here on is reconciled
+        try:
+            controller.write_offset(slot, offset)
+        except ControllerError as exc:
+            log.error("export write broke off", extra={"setup_id": setup_id, "slot": slot, "reason": str(exc)})
+            reconcile(session, row, controller, machine.id, actor)  # did anything arrive?
+            if row.status == "failed":
+                row.reason = f"export to {slot} failed: {exc}; {row.reason}"
+                session.add(row)
+                session.commit()
             events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": row.reason})
+            if row.status != "written":
+                raise Unavailable(f"export to {slot} {'failed' if row.status == 'failed' else 'broke off'}: "
+                                  f"{exc}; status {row.status}: {row.reason}") from None
+            return row
+        reconcile(session, row, controller, machine.id, actor)  # the read-back decides written / failed
+        if row.status == "written":
+            events.publish("offset.exported", {"setup_id": setup_id, "machine_id": machine.id, "slot": slot,
+                                               "written": row.written, "read_back": row.read_back})
+        else:
+            log.error("export not confirmed by read-back", extra={"setup_id": setup_id, "reason": row.reason})
+            events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": row.reason})
+            if row.status == "unknown":
+                raise Unavailable(f"export to {slot}: {row.reason}")
         return row
     finally:
         controller.close()

@@ -32,6 +32,7 @@ class JobRunner:
     def __init__(self, ctx: JobContext, workers: int = 1):
         self.ctx = ctx
         self._pool = ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="setupcam-job")
+        self._stopped = False
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
         def run() -> Any:
@@ -43,5 +44,10 @@ class JobRunner:
 
         return self._pool.submit(run)
 
+    def alive(self) -> bool:
+        """True while jobs are taken (False once shut down)."""
+        return not self._stopped
+
     def shutdown(self) -> None:
+        self._stopped = True
         self._pool.shutdown(wait=False, cancel_futures=True)

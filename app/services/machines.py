@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from sqlmodel import Session, col, select
@@ -12,6 +13,10 @@ from app.services.errors import Invalid, NotFound
 from app.store.models import Camera, Machine, utcnow
 
 
+MAX_TRAVEL_MM = 100_000.0  # 100 m: more than any machine tool's axis
+NOT_NULL = ("name", "table_model_id", "T_machine_table", "travel_mm", "camera_ids")
+
+
 def validate_travel(travel: dict) -> dict:
     out = {}
     for axis in ("x", "y", "z"):
@@ -19,6 +24,10 @@ def validate_travel(travel: dict) -> dict:
         if lim is None or len(lim) != 2:
             raise Invalid(f"travel_mm.{axis}: give [min, max] in mm")
         lo, hi = float(lim[0]), float(lim[1])
+        if not (math.isfinite(lo) and math.isfinite(hi)) or max(abs(lo), abs(hi)) > MAX_TRAVEL_MM:
+            # an infinite limit would switch the travel check of every export off
+            raise Invalid(f"travel_mm.{axis}: limits must be finite numbers within ±{MAX_TRAVEL_MM:.0f} mm, "
+                          f"got [{lo}, {hi}]")
         if not lo < hi:
             raise Invalid(f"travel_mm.{axis}: min {lo} must be below max {hi}")
         out[axis] = [lo, hi]
@@ -86,6 +95,9 @@ def list_machines(session: Session) -> list[Machine]:
 
 def update_machine(session: Session, machine_id: int, changes: dict[str, Any]) -> Machine:
     m = get_machine(session, machine_id)
+    for key in NOT_NULL:
+        if key in changes and changes[key] is None:
+            raise Invalid(f"{key}: must not be null (leave it out to keep the current value)")
     if "name" in changes:
         m.name = changes["name"]
     if "table_model_id" in changes or "table_revision" in changes:

@@ -39,6 +39,11 @@ def run_rotary(session: Session, files: FileStore, *, camera_id: int, images: li
     except TargetError as exc:
         raise Invalid(f"target: {exc}") from None
     decoded = [decode_image(data, f"image {name!r}") for name, data in images]
+    w, h = cam.intrinsics["width"], cam.intrinsics["height"]
+    for (name, _), img in zip(images, decoded):
+        if (img.shape[1], img.shape[0]) != (w, h):
+            raise Invalid(f"image {name!r} is {img.shape[1]} x {img.shape[0]} px but camera {cam.id} is calibrated "
+                          f"for {w} x {h} px; every image of a run must come from this camera at that resolution")
     result = measure_run(decoded, angles_deg, parse_intrinsics(cam.intrinsics), tgt, method=method)
     run = RotaryRun(camera_id=cam.id, axis_name=axis_name, target=tgt.to_dict(), angles_deg=list(angles_deg),
                     image_sha256=[files.put(session, d, "image/jpeg") for _, d in images], ok=result.ok,

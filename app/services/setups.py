@@ -15,6 +15,7 @@ import numpy as np
 from sqlmodel import Session, col, select
 
 from app.services import library
+from app.services.audit import audit
 from app.services.cameras import decode_image, get_camera, grab_frame
 from app.services.errors import Conflict, Invalid, NotFound
 from app.services.jobs import JobContext
@@ -251,10 +252,48 @@ def datum_undecided(obj: dict) -> bool:
     return bool(obj.get("datum_ambiguous")) and bool(obj.get("equivalent_poses"))
 
 
+MAX_POSITION_MM = 10_000.0  # no part sits 10 m from the table origin: a pose out there is a typo
+
+
+def adjustment_check(obj: dict, max_mm: float, max_deg: float) -> tuple[bool, str]:
+    """Is an operator's move still covered by the fit? The 1-sigma describes the pose the fit found
+    (``T_table_obj_fit``, table frame); a move of more than 3 sigma, or more than ``max_mm`` / ``max_deg``,
+    along any axis leaves it: the object must be refined (fit again from there) before it may pass."""
+    fit = obj.get("T_table_obj_fit")
+    if fit is None:
+        return True, ""
+    T, F = np.asarray(obj["T_table_obj"], float), np.asarray(fit, float)
+    sigma = obj.get("sigma") or {}
+    reasons = []
+    for i, axis in enumerate("xyz"):
+        moved = float(T[i, 3] - F[i, 3])
+        s = sigma.get(f"{axis}_mm")
+        limit = min(3 * s, max_mm) if s is not None and np.isfinite(s) else max_mm
+        if abs(moved) > limit:
+            reasons.append(f"moved {moved:+.2f} mm in {axis} from the fitted pose (more than {limit:.2f} mm"
+                           f"{' = 3 sigma' if limit < max_mm else ''})")
+    R = T[:3, :3] @ F[:3, :3].T  # the turn, in the table frame
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+    s_rot = [sigma.get(k) for k in ("rx_deg", "ry_deg", "rz_deg") if sigma.get(k) is not None]
+    s_rot = [v for v in s_rot if np.isfinite(v)]
+    limit = min(3 * max(s_rot), max_deg) if s_rot else max_deg
+    if angle > limit:
+        reasons.append(f"turned {angle:.2f}° from the fitted pose (more than {limit:.2f}°"
+                       f"{' = 3 sigma' if limit < max_deg else ''})")
+    if reasons:
+        return False, "; ".join(reasons) + "; refine from here (or locate again) before export"
+    return True, ""
+
+
 def review_fields(result: dict, machine, settings) -> dict:
-    """Add pass/fail per object and the proposed offset to a result (in place) and return it."""
+    """Add pass/fail per object and the proposed offset to a result (in place) and return it. An object
+    the operator moved away from its fitted pose fails until refined (``adjustment_check``)."""
     for o in result.get("objects", []):
         ok, why = uncertainty_check(o, settings.max_sigma_mm, settings.max_sigma_deg)
+        moved_ok, moved_why = adjustment_check(o, getattr(settings, "max_adjust_mm", 1.0),
+                                               getattr(settings, "max_adjust_deg", 0.5))
+        if not moved_ok:
+            ok, why = False, "; ".join(w for w in (moved_why, why) if w)
         o["uncertainty_pass"], o["uncertainty_reason"] = ok, why
     result["offset"] = proposed_offset(result, machine.T_machine_table, settings.max_tilt_deg)
     return result
@@ -304,9 +343,16 @@ def adjust_object(session: Session, files: FileStore, settings, setup_id: int, *
             new = check_pose(T_table_obj, "T_table_obj", tol=1e-5)
         except PoseError as exc:
             raise Invalid(str(exc)) from None
+    if np.max(np.abs(new[:3, 3])) > MAX_POSITION_MM:
+        raise Invalid(f"T_table_obj: position {np.round(new[:3, 3], 1).tolist()} mm is more than "
+                      f"{MAX_POSITION_MM / 1000:.0f} m from the table origin")
     T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
-    obj = {**objs[object_index], "T_table_obj": new.tolist(), "T_cam_obj": (T_cam_table @ new).tolist(),
-           "adjusted": True, "score": None, "flags": [*objs[object_index].get("flags", []), "adjusted by operator"]}
+    before = objs[object_index]
+    # the pose the fit found stays on record: the move away from it is what adjustment_check judges
+    fitted = before.get("T_table_obj_fit") or before["T_table_obj"]
+    obj = {**before, "T_table_obj": new.tolist(), "T_cam_obj": (T_cam_table @ new).tolist(),
+           "T_table_obj_fit": fitted, "adjusted": True, "score": None,
+           "flags": [*before.get("flags", []), "adjusted by operator"]}
     result = {**s.result, "objects": [obj if i == object_index else o for i, o in enumerate(objs)]}
     machine = get_machine(session, s.machine_id)
     result = review_fields(result, machine, settings)
@@ -314,6 +360,10 @@ def adjust_object(session: Session, files: FileStore, settings, setup_id: int, *
     _new_revision(s, result, "adjusted", by)
     session.add(s)
     session.flush()
+    moved = result["objects"][object_index]
+    audit(session, by or "?", "setup.adjust", setup_id=s.id, machine_id=s.machine_id, object_index=object_index,
+          result_revision=s.result_revision, nudge=nudge, T_table_obj=moved["T_table_obj"],
+          uncertainty_pass=moved["uncertainty_pass"], reason=moved["uncertainty_reason"])
     return s
 
 
@@ -349,12 +399,16 @@ def choose_datum(session: Session, files: FileStore, settings, setup_id: int, *,
              "datum_note": f"datum chosen by {by or 'the operator'}: pose {choice + 1} of {len(cands)} "
                            f"(the image could not decide: {obj.get('datum_note', '')})",
              "flags": [f for f in obj.get("flags", []) if f != "datum_ambiguous"] + ["datum chosen by operator"]}
+    if choice > 0:  # an equivalent pose of the fit is a fitted pose (the image fits it as well): nothing moved
+        entry.pop("T_table_obj_fit", None)
     result = {**s.result, "objects": [entry if i == object_index else o for i, o in enumerate(objs)]}
     result = review_fields(result, get_machine(session, s.machine_id), settings)
     result["overlay_sha256"] = _redraw(session, files, s, result)
     _new_revision(s, result, f"datum chosen: pose {choice + 1} of {len(cands)}", by)
     session.add(s)
     session.flush()
+    audit(session, by or "?", "setup.datum", setup_id=s.id, machine_id=s.machine_id, object_index=object_index,
+          choice=choice, result_revision=s.result_revision)
     return s
 
 
@@ -374,6 +428,8 @@ def confirm_setup(session: Session, setup_id: int, *, result_revision: int, by: 
     s.updated_at = utcnow()
     session.add(s)
     session.flush()
+    audit(session, by, "setup.confirm", setup_id=s.id, machine_id=s.machine_id, result_revision=result_revision,
+          offset=(s.result or {}).get("offset"))
     return s
 
 
@@ -410,4 +466,6 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
     _new_revision(s, result, "refined from the operator's pose", by)
     session.add(s)
     session.flush()
+    audit(session, by or "?", "setup.refine", setup_id=s.id, machine_id=s.machine_id, object_index=object_index,
+          result_revision=s.result_revision)
     return s

@@ -31,7 +31,7 @@ from sqlmodel import Session, col, select
 from app.machine import ControllerError, WorkOffset, make_controller, slot_number
 from app.services.cameras import decode_image, get_camera, grab_frame
 from app.services.errors import Conflict, Invalid, NotFound, Unavailable
-from app.services.export import audit
+from app.services.audit import audit
 from app.services.machines import get_machine
 from app.store.files import FileStore
 from app.store.models import SheetAlignment, SheetBedPose, SheetMonitor, SheetMonitorEvent, utcnow
@@ -77,7 +77,10 @@ def _plane(intrinsics: dict, T_cam_bed, thickness_mm: float):
     from app.vision.intrinsics import parse_intrinsics
 
     cam = parse_intrinsics(intrinsics)
-    return BedPlane.create(cam.K_array, cam.dist_array, np.asarray(T_cam_bed, float), thickness_mm)
+    try:  # e.g. the pose puts the camera below the bed: a 422 with the reason, never a 500
+        return BedPlane.create(cam.K_array, cam.dist_array, np.asarray(T_cam_bed, float), thickness_mm)
+    except ValueError as exc:
+        raise Invalid(str(exc)) from None
 
 
 def _png(img: np.ndarray) -> bytes:

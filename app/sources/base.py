@@ -47,9 +47,19 @@ def to_bgr_uint8(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
+MAX_FRAME_PIXELS = 100_000_000  # no camera delivers more; a larger header is a broken or hostile source
+
+
 def decode_bytes(data: bytes) -> np.ndarray | None:
-    """Decode JPEG/PNG/... bytes to BGR uint8, or None when OpenCV cannot read them."""
+    """Decode JPEG/PNG/... bytes to BGR uint8, or None when OpenCV cannot read them or the header says
+    more than ``MAX_FRAME_PIXELS`` (read before decoding: a small file can say 30000 x 30000 px)."""
+    from app.vision.image_header import ImageHeaderError, check_image_size
+
     if not data:
+        return None
+    try:
+        check_image_size(data, MAX_FRAME_PIXELS)
+    except ImageHeaderError:
         return None
     image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
     return None if image is None else to_bgr_uint8(image)

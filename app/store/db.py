@@ -61,3 +61,21 @@ def session_scope(engine: Engine) -> Iterator[Session]:
         except Exception:
             session.rollback()
             raise
+
+
+def protect_data(data_dir: Path, database_url: str) -> None:
+    """Only the service's user may read what it keeps: data folder (and the file store in it) 0700, the
+    SQLite file with its WAL/SHM companions 0600. Applied at every start, so an older install is fixed."""
+    import os
+    import stat
+
+    for folder in (Path(data_dir), Path(data_dir) / "files"):
+        if folder.is_dir():
+            os.chmod(folder, stat.S_IRWXU)
+    if database_url.startswith("sqlite"):
+        path = database_url.split("///", 1)[-1]
+        if path and path != ":memory:":
+            for suffix in ("", "-wal", "-shm", "-journal"):
+                f = Path(path + suffix)
+                if f.exists():
+                    os.chmod(f, stat.S_IRUSR | stat.S_IWUSR)

@@ -217,7 +217,10 @@ class Export(SQLModel, table=True):
     setup_id: int = Field(foreign_key="setup.id", index=True)
     result_revision: int
     slot: str = Field(max_length=20)
-    status: str = Field(max_length=20, description="writing | verified | mismatch | failed")
+    status: str = Field(max_length=20, description="pending | writing | written | failed | unknown "
+                                                   "(app/services/export.py)")
+    idempotency_key: str | None = Field(default=None, max_length=100, unique=True,
+                                        description="The client's key (or setup/revision/slot): one export per key")
     written: dict | None = json_field()
     read_back: dict | None = json_field()
     before: dict | None = json_field()

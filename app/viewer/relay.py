@@ -3,8 +3,10 @@
 viser's web client is one self-contained ``index.html`` in the wheel. It builds its websocket URL from
 the page's address (query dropped, trailing ``/`` stripped), so the page at ``/viewer/setup/5/``
 connects to ``/viewer/setup/5``; we relay that socket to ``ws://127.0.0.1:<viser port>/setup/5``, and
-the viewer reads the path to pick the scene. viser has no authentication of its own: this relay is
-where it would go.
+the viewer reads the path to pick the scene. viser has no authentication of its own: this relay is the
+only door. It checks the Origin (no other site's page may open the socket) and the session, then
+hands viser a one-time ticket naming who is looking (``Tickets`` in app/viewer/server.py); a
+connection to viser's inner port without a ticket sees and moves nothing.
 """
 
 from __future__ import annotations
@@ -69,12 +71,17 @@ async def viewer_socket(ws: WebSocket, kind: ViewKind, ident: int) -> None:
     if viewer is None or viewer.server is None:
         await ws.close(code=1011)
         return
+    from app.api.limits import same_origin
+
+    if not same_origin(ws.headers, ws.app.state.settings):
+        await ws.close(code=1008)  # another site's page in the operator's browser: refused (no CSRF by socket)
+        return
     who = await asyncio.to_thread(principal_of, ws.app, ws.cookies, ws.headers)
     if who is None:
         await ws.close(code=1008)  # policy violation: not signed in
         return
-    # Who is looking travels to the viewer in the upstream path: only a signed-in person may move parts.
-    query = urlencode({"who": who.label(), "person": int(who.is_person)})
+    # Who is looking reaches the viewer only as a one-time ticket: the inner port believes nothing else.
+    query = urlencode({"t": viewer.tickets.issue(who.label(), who.is_person)})
     protos = ws.scope.get("subprotocols", [])  # the client offers ["viser-v<version>"]
     async with websockets.connect(f"ws://{viewer.host}:{viewer.port}/{kind}/{ident}?{query}", subprotocols=protos,
                                   max_size=None, compression=None) as up:

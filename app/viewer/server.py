@@ -16,6 +16,7 @@ import dataclasses
 import logging
 import re
 import threading
+import time
 from urllib.parse import parse_qs
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -36,10 +37,40 @@ def parse_view_path(path: str) -> tuple[str, int] | None:
     return (m.group(1), int(m.group(2))) if m else None
 
 
-def parse_viewer(path: str) -> tuple[str | None, bool]:
-    """(who, is_person) that the relay put in the query (``?who=anna (operator)&person=1``)."""
-    q = parse_qs(path.partition("?")[2])
-    return (q.get("who", [None])[0], q.get("person", ["0"])[0] == "1")
+def ticket_of(path: str) -> str | None:
+    """The relay's one-time ticket in the upstream path's query (``?t=...``), or None."""
+    return parse_qs(path.partition("?")[2]).get("t", [None])[0]
+
+
+class Tickets:
+    """One-time tickets the relay issues for a signed-in browser just before it connects upstream: the
+    viewer believes nothing a connection says about itself, only what the ticket says (who, may edit).
+    A connection to the inner port without one sees nothing and can move nothing."""
+
+    def __init__(self, ttl_s: float = 30.0):
+        self.ttl_s = ttl_s
+        self._tickets: dict[str, tuple[float, str, bool]] = {}
+        self._lock = threading.Lock()
+
+    def issue(self, who: str, person: bool) -> str:
+        import secrets
+
+        ticket = secrets.token_urlsafe(32)
+        now = time.monotonic()
+        with self._lock:
+            self._tickets = {t: v for t, v in self._tickets.items() if v[0] > now}
+            self._tickets[ticket] = (now + self.ttl_s, who, person)
+        return ticket
+
+    def redeem(self, ticket: str | None) -> tuple[str, bool] | None:
+        """(who, is_person) once per ticket; None for a missing, used or expired one."""
+        if not ticket:
+            return None
+        with self._lock:
+            entry = self._tickets.pop(ticket, None)
+        if entry is None or entry[0] < time.monotonic():
+            return None
+        return entry[1], entry[2]
 
 
 @dataclass
@@ -71,6 +102,7 @@ class ViewerServer:
         self._stop = threading.Event()
         self.server: Any = None
         self._poller: threading.Thread | None = None
+        self.tickets = Tickets()
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> "ViewerServer":
@@ -115,7 +147,12 @@ class ViewerServer:
     def _connected(self, client) -> None:
         path = self._client_path(client.client_id)
         what = parse_view_path(path)
-        who, person = parse_viewer(path)
+        admitted = self.tickets.redeem(ticket_of(path))
+        if admitted is None:  # not through the service's relay: nothing to see, nothing to move
+            log.warning("viewer: connection without a relay ticket refused", extra={"client": client.client_id})
+            client.gui.add_markdown("Open the 3D view through setupcam (a setup or the library page).")
+            return
+        who, person = admitted
         if what is None:
             client.gui.add_markdown("Open the 3D view from a setup or the library page.")
             return

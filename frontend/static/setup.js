@@ -391,7 +391,7 @@ async function exportOffset(acknowledge = false) {
     const out = await postJSON(state.exportPath.replace("{setup_id}", s.id), { slot: $("slot").value, acknowledge_change: acknowledge });
     const w = out.read_back || out.written || {};
     const vals = ["x_mm", "y_mm", "z_mm", "c_deg"].filter((k) => k in w).map((k) => `${k[0].toUpperCase()} ${fmt(w[k], 3)}`).join(", ");
-    if (out.status === "verified") {
+    if (out.status === "written") {
       status.textContent = `Written to ${out.slot} and read back: ${vals}.`;
       status.className = "pass";
       say($("status"), `Done: the controller holds the new offset in ${out.slot}.`, "ok");

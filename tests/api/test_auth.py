@@ -55,8 +55,8 @@ def test_mes_key_may_not_confirm_or_adjust(server):
 def test_admin_makes_accounts_and_keys_over_rest(server):
     with server.client("admin") as c:
         r = c.post("/api/v1/users", json={"name": "berta", "role": "operator"})
-        assert r.status_code == 201 and len(r.json()["password"]) >= 12
-        pw = r.json()["password"]
+        assert r.status_code == 201 and len(r.json()["initial_password"]) >= 12
+        pw = r.json()["initial_password"]
         assert c.post("/api/v1/users", json={"name": "berta", "role": "operator"}).status_code == 409
         assert c.post("/api/v1/users", json={"name": "x", "role": "king"}).status_code == 422
         key = c.post("/api/v1/apikeys", json={"name": "mes 2", "scope": "mes"}).json()

@@ -54,7 +54,7 @@ def test_confirmed_export_is_written_read_back_and_not_repeated(server, lcnc, lc
         r = c.post(f"/api/v1/setups/{sid}/export", json={"slot": "G54", "acknowledge_change": True})
         assert r.status_code == 200, r.text
         body = r.json()
-        assert body["status"] == "verified" and body["agree"] and body["actor"] == "test-operator (operator)"
+        assert body["status"] == "written" and body["agree"] and body["actor"] == "test-operator (operator)"
         assert body["written"]["x_mm"] == pytest.approx(expected[0, 3])
         g5x, rot = lcnc_g54(lcnc)  # LinuxCNC's own status, read through its Python module
         assert np.allclose(g5x, expected[:3, 3], atol=1e-4), (g5x, expected[:3, 3])
@@ -64,7 +64,8 @@ def test_confirmed_export_is_written_read_back_and_not_repeated(server, lcnc, lc
         assert len(c.get(f"/api/v1/setups/{sid}/exports").json()) == 1
     with server.client("admin") as c:
         actions = [e["action"] for e in c.get("/api/v1/audit", params={"setup_id": sid}).json()]
-        assert actions == ["export.verified", "export.write"], "one write, on record before and after"
+        assert actions == ["export.written", "export.write", "export.attempt", "setup.confirm"], \
+            "one write, on record before and after"
     with server.client("operator") as c:
         assert c.get("/api/v1/audit").status_code == 403
         current = c.get(f"/api/v1/machines/{lcnc_machine['id']}/offsets/G54").json()
@@ -143,9 +144,10 @@ def test_opcua_export_and_controller_dying_mid_write(server):
         with server.client("operator") as c:
             c.post(f"/api/v1/setups/{sid2}/confirm", json={"result_revision": 1})
             r = c.post(f"/api/v1/setups/{sid2}/export", json={"slot": "G55", "acknowledge_change": True})
-            assert r.status_code == 502 and "failed" in r.json()["detail"], r.text
+            assert r.status_code == 502 and "broke off" in r.json()["detail"], r.text
             exports = c.get(f"/api/v1/setups/{sid2}/exports").json()
-            assert exports[0]["status"] == "failed"
+            # the controller died mid-write: only reading it back could tell, and it cannot be read
+            assert exports[0]["status"] == "unknown" and "read back again" in exports[0]["reason"]
     finally:
         ok.stop()
         dying.stop()

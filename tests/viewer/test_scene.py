@@ -10,7 +10,7 @@ from app.geometry.transforms import inv, pose_from_xyz_euler, rotation_angle_deg
 from app.viewer.scene import (M_PER_MM, SetupView, ViewCamera, ViewObject, ViewPath, build_setup_scene,
                               frustum_geometry, initial_camera, move_objects, pose_to_viser, update_paths,
                               viser_to_pose)
-from app.viewer.server import parse_view_path, parse_viewer
+from app.viewer.server import Tickets, parse_view_path, ticket_of
 
 
 class Handle:
@@ -136,10 +136,15 @@ def test_parse_view_path(path, expected):
     assert parse_view_path(path) == expected
 
 
-def test_parse_viewer_from_the_relay_query():
-    assert parse_viewer("/setup/5?who=anna%20%28operator%29&person=1") == ("anna (operator)", True)
-    assert parse_viewer("/setup/5?who=mes%20%28mes%20key%29&person=0") == ("mes (mes key)", False)
-    assert parse_viewer("/setup/5") == (None, False)     # straight to viser's port: look, don't touch
+def test_tickets_are_one_time_and_expire():
+    t = Tickets(ttl_s=30)
+    ticket = t.issue("anna (operator)", True)
+    assert ticket_of(f"/setup/5?t={ticket}") == ticket and ticket_of("/setup/5?who=anna&person=1") is None
+    assert t.redeem(ticket) == ("anna (operator)", True)
+    assert t.redeem(ticket) is None, "used once"
+    assert t.redeem(None) is None and t.redeem("made-up") is None   # straight to viser's port: nothing
+    expired = Tickets(ttl_s=-1)
+    assert expired.redeem(expired.issue("x", True)) is None
 
 
 def test_paths_are_drawn_in_metres_and_replaced_on_a_new_version():

@@ -1,11 +1,16 @@
-"""/api/v1/audit: the append-only log of exports and other controller writes (admin)."""
+"""/api/v1/audit: the append-only log of security-relevant actions (admin): sign-ins (ok, failed,
+throttled), account and key changes, role refusals, confirm, adjust, refine, datum, exports, machine,
+camera and library changes; who, when and (in ``detail``) from where. Readable as JSON or as CSV."""
 
 from __future__ import annotations
 
+import csv
+import io
+import json
 from datetime import datetime
 from typing import Annotated
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Response
 from pydantic import BaseModel
 from sqlmodel import col, select
 
@@ -25,11 +30,36 @@ class AuditPublic(BaseModel):
     detail: dict
 
 
-@router.get("", response_model=list[AuditPublic], summary="Audit log, newest first (admin)")
-def list_audit(session: SessionDep, _admin: AdminPrincipal, setup_id: int | None = None,
-               limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[AuditPublic]:
+def _entries(session, setup_id: int | None, action: str | None, since: datetime | None, limit: int):
     q = select(AuditEntry)
     if setup_id is not None:
         q = q.where(AuditEntry.setup_id == setup_id)
-    rows = session.exec(q.order_by(col(AuditEntry.id).desc()).limit(limit)).all()
-    return [AuditPublic.model_validate(r, from_attributes=True) for r in rows]
+    if action:
+        q = q.where(col(AuditEntry.action).startswith(action))
+    if since is not None:
+        q = q.where(AuditEntry.at >= since)
+    return session.exec(q.order_by(col(AuditEntry.id).desc()).limit(limit)).all()
+
+
+@router.get("", response_model=list[AuditPublic], summary="Audit log, newest first (admin)")
+def list_audit(session: SessionDep, _admin: AdminPrincipal, setup_id: int | None = None,
+               action: Annotated[str | None, Query(max_length=50, description="prefix, e.g. auth. or setup.")] = None,
+               since: datetime | None = None,
+               limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[AuditPublic]:
+    return [AuditPublic.model_validate(r, from_attributes=True)
+            for r in _entries(session, setup_id, action, since, limit)]
+
+
+@router.get("/export.csv", response_class=Response, summary="The audit log as CSV, newest first (admin)",
+            responses={200: {"content": {"text/csv": {}}}})
+def export_audit(session: SessionDep, _admin: AdminPrincipal, setup_id: int | None = None,
+                 action: Annotated[str | None, Query(max_length=50)] = None, since: datetime | None = None,
+                 limit: Annotated[int, Query(ge=1, le=100_000)] = 10_000) -> Response:
+    out = io.StringIO()
+    w = csv.writer(out)
+    w.writerow(["id", "at", "actor", "action", "setup_id", "machine_id", "detail"])
+    for r in _entries(session, setup_id, action, since, limit):
+        w.writerow([r.id, r.at.isoformat(), r.actor, r.action, r.setup_id or "", r.machine_id or "",
+                    json.dumps(r.detail, sort_keys=True)])
+    return Response(out.getvalue(), media_type="text/csv",
+                    headers={"Content-Disposition": 'attachment; filename="setupcam-audit.csv"'})

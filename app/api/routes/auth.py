@@ -2,20 +2,27 @@
 
 from __future__ import annotations
 
+import logging
 from datetime import datetime
 
 from fastapi import APIRouter, HTTPException, Request, Response, status
 from pydantic import BaseModel, Field
 
-from app.api.deps import SESSION_COOKIE, AdminPrincipal, CurrentPrincipal, SessionDep
+from app.api.deps import SESSION_COOKIE, AdminPrincipal, CurrentPrincipal, SessionDep, SettingsDep
 from app.services import access
+from app.services.audit import audit
 
 router = APIRouter(tags=["auth"])
+log = logging.getLogger(__name__)
+
+
+def _address(request: Request) -> str:
+    return request.client.host if request.client else "unknown"
 
 
 class LoginBody(BaseModel):
-    name: str = Field(examples=["anna"])
-    password: str
+    name: str = Field(max_length=100, examples=["anna"])
+    password: str = Field(max_length=1000)
 
 
 class LoginAnswer(BaseModel):
@@ -41,7 +48,9 @@ class UserCreated(BaseModel):
     id: int
     name: str
     role: str
-    password: str = Field(description="Shown once")
+    initial_password: str | None = Field(default=None, description="Only when the request gave no password: "
+                                                                     "the random one the service made, shown once. "
+                                                                     "A given password is never sent back.")
 
 
 class ApiKeyCreate(BaseModel):
@@ -56,13 +65,32 @@ class ApiKeyCreated(BaseModel):
     key: str = Field(description="Shown once; send as 'Authorization: Bearer <key>'")
 
 
-@router.post("/auth/login", response_model=LoginAnswer, summary="Sign in (operator or admin)")
-def login(session: SessionDep, body: LoginBody, response: Response) -> LoginAnswer:
+@router.post("/auth/login", response_model=LoginAnswer, summary="Sign in (operator or admin)",
+             responses={401: {"description": "wrong name or password (the same answer for both)"},
+                        429: {"description": "too many failed sign-ins for this name or address; Retry-After"}})
+def login(request: Request, session: SessionDep, settings: SettingsDep, body: LoginBody,
+          response: Response) -> LoginAnswer:
+    address = _address(request)
+    keys = (f"user:{body.name.strip().lower()}", f"addr:{address}")
+    throttle = request.app.state.login_throttle
+    wait = throttle.wait_s(*keys)
+    if wait > 0:
+        log.warning("sign-in throttled", extra={"user": body.name[:100], "address": address, "wait_s": round(wait)})
+        audit(session, body.name[:100] or "?", "auth.login_throttled", address=address, wait_s=round(wait))
+        session.commit()
+        raise HTTPException(429, f"too many failed sign-ins for this name or from this address; try again in "
+                                 f"{wait:.0f} s", headers={"Retry-After": str(max(1, round(wait)))})
     found = access.login(session, body.name, body.password)
     if found is None:
+        throttle.failed(*keys)
+        log.warning("sign-in failed", extra={"user": body.name[:100], "address": address})
+        audit(session, body.name[:100] or "?", "auth.login_failed", address=address)
+        session.commit()  # the refusal below must not roll the audit entry back
         raise HTTPException(401, "wrong name or password")
+    throttle.succeeded(keys[0])
     user, token, expires = found
-    response.set_cookie(SESSION_COOKIE, token, httponly=True, samesite="strict",
+    audit(session, user.name, "auth.login", address=address)
+    response.set_cookie(SESSION_COOKIE, token, httponly=True, samesite="strict", secure=settings.cookie_secure,
                         max_age=access.SESSION_HOURS * 3600)
     return LoginAnswer(name=user.name, role=user.role, token=token, expires_at=expires)
 
@@ -86,20 +114,25 @@ def me(principal: CurrentPrincipal) -> Me:
 
 
 @router.post("/users", status_code=status.HTTP_201_CREATED, response_model=UserCreated, summary="Add a user (admin)")
-def create_user(session: SessionDep, _admin: AdminPrincipal, body: UserCreate) -> UserCreated:
+def create_user(request: Request, session: SessionDep, admin: AdminPrincipal, body: UserCreate) -> UserCreated:
     user, password = access.create_user(session, body.name, body.role, body.password)
-    return UserCreated(id=user.id, name=user.name, role=user.role, password=password)
+    audit(session, admin.label(), "user.create", user=user.name, role=user.role, address=_address(request))
+    return UserCreated(id=user.id, name=user.name, role=user.role,
+                       initial_password=None if body.password else password)
 
 
 @router.post("/apikeys", status_code=status.HTTP_201_CREATED, response_model=ApiKeyCreated,
              summary="Create an API key (admin)")
-def create_api_key(session: SessionDep, _admin: AdminPrincipal, body: ApiKeyCreate) -> ApiKeyCreated:
+def create_api_key(request: Request, session: SessionDep, admin: AdminPrincipal, body: ApiKeyCreate) -> ApiKeyCreated:
     row, secret = access.create_api_key(session, body.name, body.scope)
+    audit(session, admin.label(), "apikey.create", key_id=row.id, scope=row.scope, prefix=row.prefix,
+          address=_address(request))
     return ApiKeyCreated(id=row.id, name=row.name, scope=row.scope, key=secret)
 
 
 @router.delete("/apikeys/{key_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
                summary="Revoke an API key (admin)")
-def revoke_api_key(session: SessionDep, _admin: AdminPrincipal, key_id: int) -> Response:
+def revoke_api_key(request: Request, session: SessionDep, admin: AdminPrincipal, key_id: int) -> Response:
     access.revoke_api_key(session, key_id)
+    audit(session, admin.label(), "apikey.revoke", key_id=key_id, address=_address(request))
     return Response(status_code=status.HTTP_204_NO_CONTENT)

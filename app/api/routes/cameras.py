@@ -12,6 +12,7 @@ from pydantic import BaseModel, Field
 from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
 from app.api.uploads import json_form, read_uploads
 from app.services import cameras as svc
+from app.services.audit import audit
 from app.services.errors import Invalid
 from app.vision.intrinsics import Intrinsics
 
@@ -59,9 +60,11 @@ def _public(cam) -> CameraPublic:
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=CameraPublic, summary="Register a camera")
-def create_camera(session: SessionDep, _admin: AdminPrincipal, body: CameraCreate) -> CameraPublic:
+def create_camera(session: SessionDep, admin: AdminPrincipal, body: CameraCreate) -> CameraPublic:
     intr = body.intrinsics.model_dump() if body.intrinsics else None
-    return _public(svc.create_camera(session, name=body.name, intrinsics=intr, source=body.source))
+    cam = svc.create_camera(session, name=body.name, intrinsics=intr, source=body.source)
+    audit(session, admin.label(), "camera.create", camera_id=cam.id, name=cam.name)
+    return _public(cam)
 
 
 @router.get("", response_model=list[CameraPublic], summary="List cameras")
@@ -75,15 +78,18 @@ def get_camera(session: SessionDep, camera_id: int) -> CameraPublic:
 
 
 @router.patch("/{camera_id}", response_model=CameraPublic, summary="Change name, intrinsics or source")
-def update_camera(session: SessionDep, _admin: AdminPrincipal, camera_id: int, body: CameraUpdate) -> CameraPublic:
+def update_camera(session: SessionDep, admin: AdminPrincipal, camera_id: int, body: CameraUpdate) -> CameraPublic:
     changes = body.model_dump(exclude_unset=True)
-    return _public(svc.update_camera(session, camera_id, changes))
+    cam = svc.update_camera(session, camera_id, changes)
+    audit(session, admin.label(), "camera.update", camera_id=cam.id, changed=sorted(changes))
+    return _public(cam)
 
 
 @router.delete("/{camera_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
                summary="Remove a camera (soft delete)")
-def delete_camera(session: SessionDep, _admin: AdminPrincipal, camera_id: int) -> Response:
+def delete_camera(session: SessionDep, admin: AdminPrincipal, camera_id: int) -> Response:
     svc.delete_camera(session, camera_id)
+    audit(session, admin.label(), "camera.delete", camera_id=camera_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
@@ -136,5 +142,7 @@ def get_calibration(session: SessionDep, camera_id: int, calibration_id: int) ->
 
 @router.post("/{camera_id}/calibrations/{calibration_id}/accept", response_model=CameraPublic,
              summary="Use this calibration's intrinsics for the camera")
-def accept_calibration(session: SessionDep, _admin: AdminPrincipal, camera_id: int, calibration_id: int) -> CameraPublic:
-    return _public(svc.accept_calibration(session, camera_id, calibration_id))
+def accept_calibration(session: SessionDep, admin: AdminPrincipal, camera_id: int, calibration_id: int) -> CameraPublic:
+    cam = svc.accept_calibration(session, camera_id, calibration_id)
+    audit(session, admin.label(), "camera.calibration_accepted", camera_id=camera_id, calibration_id=calibration_id)
+    return _public(cam)

@@ -10,6 +10,7 @@ from pydantic import BaseModel, Field
 
 from app.api.deps import AdminPrincipal, SessionDep, get_principal
 from app.services import machines as svc
+from app.services.audit import audit
 
 router = APIRouter(prefix="/machines", tags=["machines"], dependencies=[Depends(get_principal)])
 
@@ -70,8 +71,10 @@ def _public(m) -> MachinePublic:
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=MachinePublic, summary="Register a machine")
-def create_machine(session: SessionDep, _admin: AdminPrincipal, body: MachineCreate) -> MachinePublic:
-    return _public(svc.create_machine(session, **body.model_dump()))
+def create_machine(session: SessionDep, admin: AdminPrincipal, body: MachineCreate) -> MachinePublic:
+    m = svc.create_machine(session, **body.model_dump())
+    audit(session, admin.label(), "machine.create", machine_id=m.id, name=m.name)
+    return _public(m)
 
 
 @router.get("", response_model=list[MachinePublic], summary="List machines")
@@ -85,8 +88,12 @@ def get_machine(session: SessionDep, machine_id: int) -> MachinePublic:
 
 
 @router.patch("/{machine_id}", response_model=MachinePublic, summary="Change a machine")
-def update_machine(session: SessionDep, _admin: AdminPrincipal, machine_id: int, body: MachineUpdate) -> MachinePublic:
-    return _public(svc.update_machine(session, machine_id, body.model_dump(exclude_unset=True)))
+def update_machine(session: SessionDep, admin: AdminPrincipal, machine_id: int, body: MachineUpdate) -> MachinePublic:
+    changes = body.model_dump(exclude_unset=True)
+    m = svc.update_machine(session, machine_id, changes)
+    audit(session, admin.label(), "machine.update", machine_id=m.id, changed=sorted(changes),
+          travel_mm=m.travel_mm, T_machine_table=m.T_machine_table)
+    return _public(m)
 
 
 class OffsetPublic(BaseModel):
@@ -108,6 +115,7 @@ def read_offset(session: SessionDep, machine_id: int, slot: str) -> OffsetPublic
 
 @router.delete("/{machine_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
                summary="Remove a machine (soft delete)")
-def delete_machine(session: SessionDep, _admin: AdminPrincipal, machine_id: int) -> Response:
+def delete_machine(session: SessionDep, admin: AdminPrincipal, machine_id: int) -> Response:
     svc.delete_machine(session, machine_id)
+    audit(session, admin.label(), "machine.delete", machine_id=machine_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

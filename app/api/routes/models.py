@@ -8,8 +8,9 @@ from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile,
 
 from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
 from app.api.schemas import ModelPublic, Page, RevisionPublic
-from app.api.uploads import json_form
+from app.api.uploads import content_disposition, json_form, safe_filename
 from app.services import library
+from app.services.audit import audit
 from app.store.models import LibraryModel, ModelRevision
 
 router = APIRouter(prefix="/models", tags=["models"], dependencies=[Depends(get_principal)])
@@ -39,7 +40,7 @@ async def _read_upload(file: UploadFile, max_bytes: int) -> bytes:
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=ModelPublic,
              summary="Upload a CAD model (STL, OBJ, PLY, GLB, STEP/STP)")
 async def create_model(
-    session: SessionDep, files: FilesDep, settings: SettingsDep, _admin: AdminPrincipal,
+    session: SessionDep, files: FilesDep, settings: SettingsDep, admin: AdminPrincipal,
     file: Annotated[UploadFile, File(description="The CAD file")],
     kind: Annotated[str, Form(description="workpiece | clamp | support | table", examples=["workpiece"])],
     name: Annotated[str, Form(examples=["Bracket 4711"])],
@@ -54,10 +55,11 @@ async def create_model(
     max_bytes = int(settings.max_upload_mb * 1e6)
     surfaces = json_form(support_surfaces, "support_surfaces")
     data = await _read_upload(file, max_bytes)
-    model = library.create_model(session, files, data=data, filename=file.filename or "upload", kind=kind,
+    model = library.create_model(session, files, data=data, filename=safe_filename(file.filename), kind=kind,
                                  name=name, units=units, T_obj_datum=T_obj_datum, fiducials=fiducials,
                                  description=description, support_surfaces=surfaces, max_bytes=max_bytes,
                                  max_faces=settings.max_mesh_faces)
+    audit(session, admin.label(), "model.create", model_id=model.id, kind=model.kind, name=model.name)
     return to_public(model, library.get_revision(session, model.id))
 
 
@@ -88,7 +90,7 @@ def list_revisions(session: SessionDep, model_id: int) -> list[RevisionPublic]:
 @router.post("/{model_id}/revisions", status_code=status.HTTP_201_CREATED, response_model=ModelPublic,
              summary="Make a new revision: new geometry, units, datum frame, fiducials or support surfaces")
 async def add_revision(
-    session: SessionDep, files: FilesDep, settings: SettingsDep, _admin: AdminPrincipal, model_id: int,
+    session: SessionDep, files: FilesDep, settings: SettingsDep, admin: AdminPrincipal, model_id: int,
     file: Annotated[UploadFile | None, File()] = None,
     units: Annotated[str | None, Form()] = None,
     T_obj_datum: Annotated[str | None, Form(description="4x4 JSON; the text 'null' removes the datum",
@@ -102,7 +104,7 @@ async def add_revision(
     max_bytes = int(settings.max_upload_mb * 1e6)
     kwargs: dict = {}
     if file is not None and file.filename:
-        kwargs.update(data=await _read_upload(file, max_bytes), filename=file.filename)
+        kwargs.update(data=await _read_upload(file, max_bytes), filename=safe_filename(file.filename))
     if T_obj_datum is not None:
         kwargs["T_obj_datum"] = None if T_obj_datum.strip() == "null" else T_obj_datum
     if fiducials is not None:
@@ -111,12 +113,14 @@ async def add_revision(
         kwargs["support_surfaces"] = json_form(support_surfaces.strip(), "support_surfaces")
     rev = library.add_revision(session, files, model_id, units=units, note=note, max_bytes=max_bytes,
                                max_faces=settings.max_mesh_faces, **kwargs)
+    audit(session, admin.label(), "model.revision", model_id=model_id, revision=rev.revision,
+          changed=sorted(k for k in kwargs if k != "data"))
     return to_public(library.get_model(session, model_id), rev)
 
 
 def _file_response(files, sha: str, media_type: str, filename: str) -> Response:
     return Response(files.read(sha), media_type=media_type,
-                    headers={"Content-Disposition": f'inline; filename="{filename}"', "ETag": f'"{sha}"',
+                    headers={"Content-Disposition": content_disposition(filename), "ETag": f'"{sha}"',
                              "Cache-Control": "public, max-age=31536000, immutable"})
 
 
@@ -145,6 +149,7 @@ def get_thumbnail(session: SessionDep, files: FilesDep, model_id: int,
 
 @router.delete("/{model_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
                summary="Soft delete: hidden from lists, revisions kept for reproducibility")
-def delete_model(session: SessionDep, _admin: AdminPrincipal, model_id: int) -> Response:
+def delete_model(session: SessionDep, admin: AdminPrincipal, model_id: int) -> Response:
     library.soft_delete(session, model_id)
+    audit(session, admin.label(), "model.delete", model_id=model_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

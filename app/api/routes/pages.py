@@ -8,7 +8,7 @@ from pathlib import Path
 import re
 from functools import lru_cache
 
-from fastapi import APIRouter, HTTPException
+from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse
 
 from app.viewer import relay
@@ -40,15 +40,18 @@ def render_page(file: str, mtimes_ns: tuple[int, int]) -> str:
     return layout.replace("{{title}}", title).replace("{{body}}", body)
 
 
-def _page(name: str) -> HTMLResponse:
+def _page(name: str, request: Request) -> HTMLResponse:
     path = FRONTEND_DIR / PAGES[name]
     mtimes = (path.stat().st_mtime_ns, (FRONTEND_DIR / "_layout.html").stat().st_mtime_ns)  # edits show at once
-    return HTMLResponse(render_page(PAGES[name], mtimes), headers={"Cache-Control": "no-cache"})
+    # every <script> carries this answer's nonce: the page's CSP runs no script without it (app/api/headers.py)
+    nonce = getattr(request.state, "csp_nonce", "")
+    html = render_page(PAGES[name], mtimes).replace("<script", f'<script nonce="{nonce}"')
+    return HTMLResponse(html, headers={"Cache-Control": "no-cache"})
 
 
 @router.get("/")
-def index() -> HTMLResponse:
-    return _page("")
+def index(request: Request) -> HTMLResponse:
+    return _page("", request)
 
 
 @router.get("/static/{path:path}")
@@ -60,8 +63,8 @@ def static(path: str) -> FileResponse:
 
 
 def _add_page(name: str) -> None:
-    def page() -> HTMLResponse:
-        return _page(name)
+    def page(request: Request) -> HTMLResponse:
+        return _page(name, request)
 
     router.add_api_route(f"/{name}", page, methods=["GET"], name=f"page_{name}")
 

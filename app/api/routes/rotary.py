@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from datetime import datetime
 from typing import Annotated
 
@@ -9,7 +10,7 @@ from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
-from app.api.uploads import json_form, read_uploads
+from app.api.uploads import content_disposition, json_form, read_uploads
 from app.services import rotary as svc
 from app.services.errors import Invalid, NotFound
 
@@ -38,9 +39,12 @@ def _public(run) -> RotaryRunPublic:
 
 def _floats(text: str, what: str) -> list[float]:
     try:
-        return [float(x) for x in text.replace(";", ",").replace(" ", ",").split(",") if x.strip()]
+        values = [float(x) for x in text.replace(";", ",").replace(" ", ",").split(",") if x.strip()]
     except ValueError:
         raise Invalid(f"{what}: give numbers separated by commas, got {text!r}") from None
+    if not all(math.isfinite(v) and abs(v) <= 1e6 for v in values):
+        raise Invalid(f"{what}: give finite numbers (within ±1e6), got {text!r}")
+    return values
 
 
 @router.post("/runs", status_code=status.HTTP_201_CREATED, response_model=RotaryRunPublic,
@@ -57,8 +61,8 @@ async def create_run(
     method: Annotated[str, Form(description="direct (ours) | reference")] = "direct",
     axis_name: Annotated[str, Form(max_length=10)] = "C",
 ) -> RotaryRunPublic:
+    tgt = json_form(target, "target")  # the cheap checks first, then the images
     loaded = await read_uploads(images, settings)
-    tgt = json_form(target, "target")
     dirs = [int(d) for d in _floats(directions, "directions")] if directions else None
     run = svc.run_rotary(session, files, camera_id=camera_id, images=loaded, angles_deg=_floats(angles_deg, "angles_deg"),
                          target=tgt, method=method, directions=dirs, axis_name=axis_name, by=who.label())
@@ -82,7 +86,7 @@ def get_file(session: SessionDep, files: FilesDep, run_id: int, name: str) -> Re
         raise NotFound(f"rotary run {run_id} has no file {name!r}; it has {', '.join(sorted(run.files)) or 'none'}")
     data = files.read(run.files[name])
     media = svc.MEDIA.get("." + name.rsplit(".", 1)[-1].lower(), "text/plain")
-    return Response(data, media_type=media, headers={"Content-Disposition": f'inline; filename="{name}"'})
+    return Response(data, media_type=media, headers={"Content-Disposition": content_disposition(name)})
 
 
 @router.get("/target.{fmt}", response_class=Response, summary="The printable default target at true scale")

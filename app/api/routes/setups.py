@@ -7,12 +7,12 @@ import json
 from datetime import datetime
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Form, Header, Query, Request, Response, UploadFile, status
 from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal
-from app.api.uploads import read_upload
+from app.api.uploads import read_image_upload
 from app.services import setups as svc
 from app.services.errors import Invalid, NotFound
 from app.store.db import session_scope
@@ -77,7 +77,7 @@ async def create_setup(
     grab: Annotated[bool, Form(description="Grab the image from the camera's source")] = False,
     image: Annotated[UploadFile | None, File(description="JPEG/PNG of table and workpiece")] = None,
 ) -> SetupAccepted:
-    data = await read_upload(image, settings, "image") if image is not None and image.filename else None
+    data = await read_image_upload(image, settings, "image") if image is not None and image.filename else None
     setup = svc.create_setup(session, files, machine_id=machine_id, camera_id=camera_id,
                              model_ids=_parse_ids(model_ids), image=data, grab=grab, created_by=who.label())
     session.commit()
@@ -163,10 +163,13 @@ def get_image(session: SessionDep, files: FilesDep, setup_id: int) -> Response:
 
 
 class Nudge(BaseModel):
-    dx_mm: float = 0.0
-    dy_mm: float = 0.0
-    dz_mm: float = 0.0
-    dc_deg: float = Field(default=0.0, description="Rotation about table z through the object's origin")
+    model_config = {"allow_inf_nan": False}
+
+    dx_mm: float = Field(default=0.0, ge=-50, le=50, description="Shift along table x, mm (at most 50 per step)")
+    dy_mm: float = Field(default=0.0, ge=-50, le=50)
+    dz_mm: float = Field(default=0.0, ge=-50, le=50)
+    dc_deg: float = Field(default=0.0, ge=-30, le=30,
+                          description="Rotation about table z through the object's origin, degrees (at most 30)")
 
 
 class AdjustBody(BaseModel):
@@ -226,9 +229,13 @@ def confirm(request: Request, session: SessionDep, who: OperatorPrincipal, setup
 
 
 class ExportBody(BaseModel):
-    slot: str = Field(default="G54", examples=["G54"], description="Work offset slot: G54..G59, G59.1..G59.3")
+    slot: str = Field(default="G54", max_length=20, examples=["G54"],
+                      description="Work offset slot: G54..G59, G59.1..G59.3")
     acknowledge_change: bool = Field(default=False, description="Accept a change against the controller's "
                                                                 "current offset beyond the configured limit")
+    idempotency_key: str | None = Field(default=None, max_length=100,
+                                        description="The client's key for this export (also as the Idempotency-Key "
+                                                    "header); default: setup, result revision and slot")
 
 
 class ExportPublic(BaseModel):
@@ -236,8 +243,10 @@ class ExportPublic(BaseModel):
     setup_id: int
     result_revision: int
     slot: str
-    status: str = Field(description="verified | mismatch | failed | writing")
+    status: str = Field(description="pending -> writing -> written | failed | unknown (unknown: the write or its "
+                                    "read-back broke off; read back again before any retry and at start-up)")
     agree: bool = Field(description="Read-back equals the written values within the controller's rounding")
+    idempotency_key: str | None
     written: dict | None
     read_back: dict | None
     before: dict | None = Field(description="The slot's values before the write")
@@ -247,20 +256,24 @@ class ExportPublic(BaseModel):
 
 
 def export_public(row) -> ExportPublic:
-    return ExportPublic(**row.model_dump(), agree=row.status == "verified")
+    return ExportPublic(**row.model_dump(), agree=row.status == "written")
 
 
 @router.post("/{setup_id}/export", response_model=ExportPublic,
              summary="Write the confirmed work offset into the controller and read it back",
              responses={409: {"description": "not confirmed, changed since, or change beyond the limit"},
                         422: {"description": "implausible (tilt, uncertainty, travel) or no controller"},
-                        502: {"description": "controller unreachable; nothing written"}})
+                        502: {"description": "controller unreachable (nothing written) or the outcome is unknown "
+                                             "(status unknown: it is read back before any retry)"}})
 def export(request: Request, session: SessionDep, settings: SettingsDep, who: OperatorPrincipal, setup_id: int,
-           body: ExportBody) -> ExportPublic:
+           body: ExportBody,
+           idempotency_key: Annotated[str | None, Header(alias="Idempotency-Key", max_length=100)] = None,
+           ) -> ExportPublic:
     from app.services.export import export_offset
 
     row = export_offset(session, settings, request.app.state.events, setup_id, slot=body.slot, actor=who.label(),
-                        acknowledge_change=body.acknowledge_change)
+                        acknowledge_change=body.acknowledge_change,
+                        idempotency_key=idempotency_key or body.idempotency_key)
     return export_public(row)
 
 

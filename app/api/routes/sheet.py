@@ -13,7 +13,7 @@ from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal, \
     require_admin
-from app.api.uploads import json_form, read_upload
+from app.api.uploads import check_image, json_form, read_image_upload, read_upload
 from app.services import sheet as svc
 from app.services.errors import NotFound
 from app.store.db import session_scope
@@ -142,13 +142,13 @@ async def create_alignment(
     request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep, who: CurrentPrincipal,
     machine_id: Annotated[int, Form()],
     camera_id: Annotated[int, Form()],
-    thickness_mm: Annotated[float, Form(description="sheet thickness; its top is z = thickness in the bed frame")],
-    margin_mm: Annotated[float, Form(description="work origin inset from corner 0 along both edges, 0..20")] = 0.0,
+    thickness_mm: Annotated[float, Form(allow_inf_nan=False, description="sheet thickness; its top is z = thickness in the bed frame")],
+    margin_mm: Annotated[float, Form(allow_inf_nan=False, description="work origin inset from corner 0 along both edges, 0..20")] = 0.0,
     T_cam_bed: Annotated[str | None, Form(description="JSON 4x4 (mm); default: the camera's stored bed pose")] = None,
     grab: Annotated[bool, Form(description="grab the image from the camera's source")] = False,
     image: Annotated[UploadFile | None, File(description="JPEG/PNG of the bed")] = None,
 ) -> AlignmentPublic:
-    data = await read_upload(image, settings, "image") if image is not None and image.filename else None
+    data = await read_image_upload(image, settings, "image") if image is not None and image.filename else None
     pose = json_form(T_cam_bed, "T_cam_bed")
     if isinstance(pose, dict):
         pose = pose.get("T_cam_bed")
@@ -220,6 +220,8 @@ def get_monitor(request: Request, session: SessionDep, monitor_id: int, recent: 
 async def post_frame(request: Request, session: SessionDep, settings: SettingsDep, monitor_id: int, who: OperatorPrincipal,
                      frame: Annotated[UploadFile | None, File(description="JPEG/PNG frame")] = None) -> dict:
     data = await read_upload(frame, settings, "frame") if frame is not None else None
+    if data:  # never decode an image over the pixel limit; an unreadable frame is the monitor's to judge
+        check_image(data, settings, "frame", unreadable_ok=True)
     reg = svc.registry(request.app.state, session)
     session.commit()  # the frame is processed in sessions of its own
     return await asyncio.to_thread(reg.process, monitor_id, data or None, actor=who.label())
