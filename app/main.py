@@ -14,6 +14,7 @@ from fastapi.routing import APIRoute
 
 import app as app_pkg
 from app.api.routes import audit, auth, cameras, health, machines, models, pages, planning, rotary, setups, sheet
+from app.api.routes import docs as api_docs
 from app.config import Settings, get_settings
 from app.services.access import ensure_first_admin
 from app.services.errors import ServiceError
@@ -81,6 +82,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     "poses are 4x4 matrices `T_a_b` (pose of frame b in frame a).",
         generate_unique_id_function=operation_id,
         lifespan=lifespan,
+        docs_url=None, redoc_url=None,  # served by routes/docs.py from packaged assets, not a CDN
     )
     app.state.settings = settings
     app.state.engine = make_engine(settings.database_url)
@@ -108,6 +110,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for router in (health.router, auth.router, models.router, cameras.router, machines.router, setups.router,
                    audit.router, planning.router, rotary.router, sheet.router):
         app.include_router(router, prefix=API_PREFIX)
+    app.include_router(api_docs.router)  # /docs, /redoc without internet
     app.include_router(pages.router)  # operator pages, /static, /viewer relay
     return app
 
