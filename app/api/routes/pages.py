@@ -11,9 +11,10 @@ from functools import lru_cache
 from fastapi import APIRouter, HTTPException
 from fastapi.responses import FileResponse, HTMLResponse
 
+from app.resources import bundled_dir
 from app.viewer import relay
 
-FRONTEND_DIR = Path(__file__).resolve().parents[3] / "frontend"
+FRONTEND_DIR = bundled_dir("frontend")   # the checkout's frontend/ or the installed copy
 STATIC_DIR = FRONTEND_DIR / "static"
 
 # URL -> HTML file in frontend/
