@@ -13,8 +13,8 @@ import logging
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
 
-from app.machine import ControllerError, WorkOffset, make_controller, slot_number
-from app.services.errors import Conflict, Invalid, Unavailable
+from app.machine import ControllerError, NoOffsetYet, WorkOffset, make_controller, slot_number
+from app.services.errors import Conflict, Invalid, NotFound, Unavailable
 from app.services.machines import get_machine
 from app.services.setups import get_setup
 from app.store.models import AuditEntry, Export, utcnow
@@ -82,13 +82,19 @@ def export_offset(session: Session, settings, events, setup_id: int, *, slot: st
     try:
         try:
             before = controller.read_offset(slot)
+        except NoOffsetYet as exc:
+            # Nothing to show side by side: the first write to a slot is acknowledged like a large change.
+            if not acknowledge_change:
+                raise Conflict(f"{exc}, so there is no current {slot} to compare the change with; check the new "
+                               "values and export again with acknowledge_change=true") from None
+            before = None
         except ControllerError as exc:
             audit(session, actor, "export.unreachable", setup_id=setup_id, machine_id=machine.id, slot=slot,
                   reason=str(exc))
             session.commit()
             events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": str(exc)})
             raise Unavailable(f"{exc}; nothing was written") from None
-        d_mm, d_deg = offset.difference(before)
+        d_mm, d_deg = offset.difference(before) if before is not None else (0.0, 0.0)
         if (d_mm > settings.max_offset_change_mm or d_deg > settings.max_offset_change_deg) and not acknowledge_change:
             raise Conflict(f"the new {slot} differs from the controller's current one by {d_mm:.3f} mm / "
                            f"{d_deg:.3f}° (limits {settings.max_offset_change_mm} mm / "
@@ -96,7 +102,8 @@ def export_offset(session: Session, settings, events, setup_id: int, *, slot: st
                            "acknowledge_change=true if this is intended")
         row = done or Export(setup_id=setup_id, result_revision=setup.result_revision, slot=slot, actor=actor,
                              status="writing")
-        row.status, row.written, row.before, row.actor = "writing", offset.as_dict(), before.as_dict(), actor
+        before_dict = before.as_dict() if before is not None else None
+        row.status, row.written, row.before, row.actor = "writing", offset.as_dict(), before_dict, actor
         session.add(row)
         try:
             session.flush()
@@ -104,7 +111,7 @@ def export_offset(session: Session, settings, events, setup_id: int, *, slot: st
             session.rollback()
             raise Conflict(f"an export of setup {setup_id} to {slot} is already under way") from None
         audit(session, actor, "export.write", setup_id=setup_id, machine_id=machine.id, slot=slot,
-              before=before.as_dict(), written=offset.as_dict(), controller=controller.describe)
+              before=before_dict, written=offset.as_dict(), controller=controller.describe)
         session.commit()  # the attempt is on record before the controller is touched
         try:
             controller.write_offset(slot, offset)
@@ -150,6 +157,8 @@ def read_current_offset(session: Session, machine_id: int, slot: str) -> WorkOff
     controller = make_controller(machine.controller)
     try:
         return controller.read_offset(slot)
+    except NoOffsetYet as exc:
+        raise NotFound(f"{exc}; the first export will write it") from None
     except ControllerError as exc:
         raise Unavailable(str(exc)) from None
     finally:
