@@ -1,4 +1,5 @@
-"""``setupcam user add NAME --role operator|admin`` and ``setupcam apikey create --scope mes|admin``."""
+"""``setupcam user add NAME --role operator|admin``, ``setupcam user passwd NAME`` and
+``setupcam apikey create --scope mes|admin``."""
 
 from __future__ import annotations
 
@@ -14,6 +15,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     add.add_argument("--role", required=True, choices=["operator", "admin"])
     add.add_argument("--password", help="set this password instead of a random one (at least 8 characters)")
     add.set_defaults(func=run_user_add)
+    pw = us.add_parser("passwd", help="give a user a new password (a forgotten one, the first admin's); "
+                                      "prints a random one once unless --password is given; signs the user out")
+    pw.add_argument("name")
+    pw.add_argument("--password", help="set this password instead of a random one (at least 8 characters)")
+    pw.set_defaults(func=run_user_passwd)
 
     k = sub.add_parser("apikey", help="manage API keys for scripts and the MES")
     ks = k.add_subparsers(dest="apikey_command", metavar="ACTION")
@@ -46,6 +52,22 @@ def run_user_add(args: argparse.Namespace) -> int:
     print(f"user {user.name} ({user.role}) created")
     if not args.password:
         print(f"password (shown once): {password}")
+    return 0
+
+
+def run_user_passwd(args: argparse.Namespace) -> int:
+    from app.services.access import set_password
+    from app.services.errors import ServiceError
+
+    try:
+        with _session() as session:
+            user, password = set_password(session, args.name, args.password)
+    except ServiceError as exc:
+        print(f"setupcam user passwd: {exc.detail}", file=sys.stderr)
+        return 2
+    print(f"password of {user.name} ({user.role}) changed; their open sessions are signed out")
+    if not args.password:
+        print(f"new password (shown once): {password}")
     return 0
 
 

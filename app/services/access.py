@@ -156,3 +156,22 @@ def ensure_first_admin(session: Session) -> str | None:
         return None
     _, password = create_user(session, "admin", "admin")
     return password
+
+
+def set_password(session: Session, name: str, password: str | None = None) -> tuple[User, str]:
+    """Give user ``name`` a new password (random when None; returned once) and end their open sessions,
+    so a reset locks out whoever knew the old one. NotFound for an unknown user."""
+    from app.services.errors import NotFound
+
+    user = session.exec(select(User).where(User.name == (name or "").strip())).first()
+    if user is None:
+        raise NotFound(f"no user {name!r}")
+    password = password or secrets.token_urlsafe(12)
+    if len(password) < 8:
+        raise Invalid("password must have at least 8 characters")
+    user.password_hash = hash_password(password)
+    session.add(user)
+    for row in session.exec(select(LoginSession).where(LoginSession.user_id == user.id)).all():
+        session.delete(row)
+    session.flush()
+    return user, password
