@@ -25,7 +25,7 @@ def test_pages_have_title_and_navigation(service):
             assert r.status_code == 200 and r.headers["content-type"].startswith("text/html"), path
             html = r.text
             assert html.startswith("<!doctype html>") and "· setupcam</title>" in html
-            for link in ("/machines", "/setup", "/history", "/library", "/cameras", "/users"):
+            for link in ("/machines", "/setup", "/history", "/library", "/sheet", "/rotary", "/cameras", "/users"):
                 assert f'href="{link}"' in html
             assert "{{" not in html and "<!-- title:" not in html
 
