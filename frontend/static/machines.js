@@ -12,6 +12,16 @@ function poseFromFields() {
           [0, 0, 1, Number($("t-z").value)], [0, 0, 0, 1]];
 }
 
+/** C (deg) of the table's x edge from the corner (fields X, Y) to a second point on that edge. */
+function angleFromPoints() {
+  const dx = Number($("p2-x").value) - Number($("t-x").value), dy = Number($("p2-y").value) - Number($("t-y").value);
+  const len = Math.hypot(dx, dy);
+  if (!($("p2-x").value && $("p2-y").value) || len < 50) {
+    throw new Error("Type the second point's X and Y: a point on the table's front edge at least 50 mm from the corner.");
+  }
+  return { c: Math.atan2(dy, dx) * 180 / Math.PI, len };
+}
+
 function fieldsFromPose(T) {
   $("t-x").value = +T[0][3].toFixed(4); $("t-y").value = +T[1][3].toFixed(4); $("t-z").value = +T[2][3].toFixed(4);
   $("t-c").value = +(Math.atan2(T[1][0], T[0][0]) * 180 / Math.PI).toFixed(4);
@@ -91,6 +101,13 @@ async function load() {
 }
 
 $("c-kind").addEventListener("change", showControllerFields);
+$("from-points").addEventListener("click", () => {
+  try {
+    const { c, len } = angleFromPoints();
+    $("t-c").value = +c.toFixed(4);
+    say("#form-msg", `C = ${fmt(c, 4)}° from two points ${fmt(len, 1)} mm apart (1 mm of error at the second point moves C by ${fmt(180 / Math.PI / len, 3)}°).`, "ok");
+  } catch (e) { say("#form-msg", e.message, "bad"); }
+});
 $("add").addEventListener("click", () => fillForm(null));
 $("close").addEventListener("click", () => $("machine-form").classList.add("hidden"));
 $("machine-form").addEventListener("submit", async (ev) => {

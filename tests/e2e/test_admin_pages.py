@@ -133,6 +133,13 @@ def test_new_admin_sets_up_a_machine_through_the_pages(service, browser, lcnc):
     assert mf.get_by_test_id("machine-cameras").locator("input").is_checked()
     for axis, value in zip("xyz", T_TABLE_CORNER):
         mf.get_by_test_id(f"machine-table-{axis}").fill(str(value))
+    # C from a second point on the table's front edge: first a table turned by 10°, then the square one
+    for c_deg in (10.0, 0.0):
+        d = 600.0 * np.array([np.cos(np.radians(c_deg)), np.sin(np.radians(c_deg))])
+        mf.get_by_test_id("machine-point2-x").fill(f"{T_TABLE_CORNER[0] + d[0]:.3f}")
+        mf.get_by_test_id("machine-point2-y").fill(f"{T_TABLE_CORNER[1] + d[1]:.3f}")
+        mf.get_by_test_id("machine-from-points").click()
+        assert float(mf.get_by_test_id("machine-table-c").input_value()) == pytest.approx(c_deg, abs=1e-3)
     for axis, (lo, hi) in {"x": (-600, 600), "y": (-400, 400), "z": (-500, 0)}.items():
         mf.locator(f"#tr-{axis}0").fill(str(lo))
         mf.locator(f"#tr-{axis}1").fill(str(hi))
