@@ -114,5 +114,6 @@ $("grab").addEventListener("click", async () => {
   try {
     state.admin = await adminMode("cameras");
     await load();
+    $("add").classList.toggle("hidden", !state.admin);
   } catch (e) { say("#msg", e.message, "bad"); }
 })();

@@ -104,12 +104,12 @@ function parseJSONField(text, what) {
   try { return JSON.parse(text); } catch (e) { throw new Error(`${what} is not valid JSON (${e.message}).`); }
 }
 
-/** Admin pages (machines, cameras): the admin gets the #add button and the .admin-only buttons; everyone
- *  else sees the form's #fields read-only with a note. Resolves to true for an admin. */
+/** Admin pages (machines, cameras): the admin gets the .admin-only buttons; everyone else sees the form's
+ *  #fields read-only with a note. Resolves to true for an admin. (The page shows its #add button once
+ *  its lists are loaded, so a new form never opens with empty choices.) */
 async function adminMode(noun) {
   const me = await whoAmI();
   const admin = !!me && me.role === "admin";
-  document.getElementById("add").classList.toggle("hidden", !admin);
   document.getElementById("fields").disabled = !admin;
   for (const b of document.querySelectorAll(".admin-only")) b.classList.toggle("hidden", !admin);
   document.getElementById("readonly-note").textContent = admin ? "" : `Read-only: only an admin changes ${noun}.`;

@@ -152,5 +152,6 @@ $("test").addEventListener("click", async () => {
   try {
     state.admin = await adminMode("machines");
     await load();
+    $("add").classList.toggle("hidden", !state.admin);
   } catch (e) { say("#msg", e.message, "bad"); }
 })();

@@ -187,6 +187,9 @@ def test_new_admin_sets_up_a_machine_through_the_pages(service, browser, lcnc):
     st = lcnc.read_slot("G54")                      # LinuxCNC's own status, not the service's word
     assert np.allclose(st["g5x_offset"], [shown["X"], shown["Y"], shown["Z"]], atol=1e-3), st
     assert st["rotation_xy"] == pytest.approx(shown["C"], abs=1e-3)
+    # the history shows the setup as written and read back
+    page.goto(f"{service.url}/history?machine=1")
+    page.get_by_test_id("history-export").filter(has_text="G54: written, read back (admin (admin)").wait_for()
     assert page.js_errors == []
 
     # --- an operator sees the machine read-only and no accounts
