@@ -158,7 +158,8 @@ def test_new_admin_sets_up_a_machine_through_the_pages(service, browser, lcnc):
     # --- the sample through the setup page: upload, confirm, export, read back
     page.get_by_test_id("machine-card").get_by_role("link", name="Set up here").click()
     page.wait_for_url(re.compile(r"/setup\?machine=\d+$"))
-    page.wait_for_function("() => document.querySelector('[data-testid=machine-select]').value !== ''")
+    page.wait_for_function("() => document.querySelector('[data-testid=machine-select]').value !== ''"
+                           " && !document.querySelector('[data-testid=upload-input]').disabled")
     assert page.get_by_test_id("machine-select").locator("option:checked").inner_text() == "Mill 1"
     page.get_by_test_id("upload-input").set_input_files(str(SAMPLES / "bracket_on_table.jpg"))
     page.wait_for_selector("#stages li", timeout=60_000)
