@@ -105,6 +105,13 @@ def test_new_admin_sets_up_a_machine_through_the_pages(service, browser, lcnc):
     assert "1600 × 1000 px. It matches the intrinsics." in msg.inner_text()
     assert page.get_by_test_id("camera-test-image").evaluate("img => img.naturalWidth") == 1600
     page.screenshot(path=str(ARTIFACTS / "admin-cameras.png"), full_page=True)
+    # calibration is one click away, with a printable board that follows the board fields
+    page.get_by_test_id("camera-card").get_by_role("link", name="Calibrate").click()
+    page.wait_for_url(re.compile(r"/camera\?camera=\d+$"))
+    page.locator("#board-kind").select_option("charuco")
+    pdf = page.request.get(service.url + page.get_by_test_id("board-pdf").get_attribute("href"))
+    assert pdf.status == 200 and pdf.headers["content-type"] == "application/pdf"
+    assert b"ChArUco board" in pdf.body()
 
     # --- users: an operator with a random password and an MES key, each secret shown once
     menu(page, "Users", "/users")
