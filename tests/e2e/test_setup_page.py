@@ -172,6 +172,9 @@ def test_every_page_is_linked_from_the_start_page(page, service):
     page.wait_for_function("() => document.querySelector('[data-testid=viewer-frame]').src.includes('/viewer/model/')")
     viewer = page.get_by_test_id("viewer-frame").element_handle().content_frame()
     wait_viewer(viewer, table=False)
+    page.wait_for_timeout(1500)
+    assert viewer.evaluate("() => document.body.innerText").count("Software WebGL") == 0, \
+        "the software-rendering notice is closed by /static/viewer-quiet.js"
     close_webgl_toast(viewer)
     page.wait_for_timeout(500)
     assert canvas_not_blank(page.get_by_test_id("viewer-frame").screenshot()) > 10.0
