@@ -11,6 +11,8 @@ from pathlib import Path
 from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from app.resources import bundled_dir
+
 
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_file=".env", extra="ignore", populate_by_name=True)
@@ -21,7 +23,7 @@ class Settings(BaseSettings):
                               description="SQLAlchemy URL; empty means SQLite under data_dir.")
     viser_port: int = Field(default=8081, validation_alias="SETUPCAM_VISER_PORT")
     models_library_dir: Path = Field(
-        default=Path(__file__).resolve().parent.parent / "models_library",
+        default_factory=lambda: bundled_dir("models_library"),
         validation_alias="SETUPCAM_MODELS_LIBRARY",
         description="Example library loaded on first start (idempotent).",
     )

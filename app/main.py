@@ -18,6 +18,7 @@ from app.api.deps import path_ids_in_range
 from app.api.headers import SecurityHeaders
 from app.api.limits import RequestGuard, route_table
 from app.api.routes import audit, auth, cameras, health, machines, models, pages, planning, rotary, setups, sheet
+from app.api.routes import docs as api_docs
 from app.config import Settings, get_settings
 from app.services.access import dummy_hash, ensure_first_admin
 from app.services.errors import ServiceError
@@ -93,6 +94,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     "poses are 4x4 matrices `T_a_b` (pose of frame b in frame a).",
         generate_unique_id_function=operation_id,
         lifespan=lifespan,
+        docs_url=None, redoc_url=None,  # served by routes/docs.py from packaged assets, not a CDN
     )
     app.state.settings = settings
     app.state.engine = make_engine(settings.database_url)
@@ -143,6 +145,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # auth, origin and size are checked before any body is read
     app.add_middleware(RequestGuard, fastapi_app=app, routes=route_table(api_routers, API_PREFIX))
     app.add_middleware(SecurityHeaders)  # outermost: every answer carries them, refusals included
+    app.include_router(api_docs.router)  # /docs, /redoc without internet
     app.include_router(pages.router)  # operator pages, /static, /viewer relay
     return app
 

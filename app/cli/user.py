@@ -133,7 +133,7 @@ def run_user_passwd(args: argparse.Namespace) -> int:
         _audit(session, "user.passwd", user=user.name)
         print(f"password of {user.name} changed; open sessions ended")
         if not args.password:
-            print(f"password (shown once): {password}")
+            print(f"new password (shown once): {password}")
         return 0
 
     return _change("user passwd", change)

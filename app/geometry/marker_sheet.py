@@ -187,6 +187,22 @@ def _svg_scale_bar(W: float, H: float) -> list[str]:
     return parts
 
 
+def pdf_scale_bar(pdf, x0_mm: float, y0_mm: float, page_h_mm: float) -> None:
+    """A 100 mm bar with 10 mm ticks on a reportlab canvas; (x0, y0) its left end, page mm with y down."""
+    from reportlab.lib.units import mm
+
+    def Y(y_mm: float) -> float:
+        return (page_h_mm - y_mm) * mm
+
+    pdf.setFillGray(0.0)
+    pdf.rect(x0_mm * mm, Y(y0_mm + 2), 100 * mm, 2 * mm, stroke=0, fill=1)
+    for k in range(11):
+        h = 5 if k % 5 == 0 else 3.5
+        pdf.rect((x0_mm + 10 * k - 0.15) * mm, Y(y0_mm + 2), 0.3 * mm, h * mm, stroke=0, fill=1)
+    pdf.setFont("Helvetica", 11)
+    pdf.drawString((x0_mm + 104) * mm, Y(y0_mm + 2), "100 mm")
+
+
 def marker_sheet_pdf(layout: FiducialLayout | dict, title: str = "setupcam fiducial markers",
                      page_size: str = "auto") -> bytes:
     """All pages of the marker sheet as a PDF at true scale (reportlab; 1 mm = 72/25.4 pt)."""
@@ -230,14 +246,7 @@ def marker_sheet_pdf(layout: FiducialLayout | dict, title: str = "setupcam fiduc
             for k, line in enumerate(t.caption):
                 pdf.setFont("Helvetica", 9 if k == 0 else 7.4)
                 pdf.drawCentredString((t.x_mm + t.size_mm / 2) * mm, Y(t.y_mm + t.size_mm + cell + 4 + 3.6 * k), line)
-        x0, y0 = MARGIN_MM, H - MARGIN_MM - 8
-        pdf.setFillGray(0.0)
-        pdf.rect(x0 * mm, Y(y0 + 2), 100 * mm, 2 * mm, stroke=0, fill=1)
-        for k in range(11):
-            h = 5 if k % 5 == 0 else 3.5
-            pdf.rect((x0 + 10 * k - 0.15) * mm, Y(y0 + 2), 0.3 * mm, h * mm, stroke=0, fill=1)
-        pdf.setFont("Helvetica", 11)
-        pdf.drawString((x0 + 104) * mm, Y(y0 + 2), "100 mm")
+        pdf_scale_bar(pdf, MARGIN_MM, H - MARGIN_MM - 8, H)
         pdf.showPage()
     pdf.save()
     return buf.getvalue()

@@ -30,6 +30,11 @@ class ControllerError(RuntimeError):
     controller and what went wrong, e.g. ``"LinuxCNC at 127.0.0.1:5007: connection refused"``."""
 
 
+class NoOffsetYet(ControllerError):
+    """The controller answered, but holds nothing for the slot yet (a file drop never written for it).
+    Not a failure of the link: the slot simply has no value to compare a new offset with."""
+
+
 @dataclass(frozen=True)
 class WorkOffset:
     """A work offset in machine coordinates: translation in mm, rotation about machine Z in degrees."""

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from app.machine.base import ControllerError, WorkOffset, slot_name, slot_number, wrap_deg
+from app.machine.base import ControllerError, NoOffsetYet, WorkOffset, slot_name, slot_number, wrap_deg
 
 DIALECTS = ("heidenhain", "fanuc", "siemens", "linuxcnc")
 
@@ -324,7 +324,7 @@ class FileController:
         try:
             text = path.read_text(encoding="ascii")
         except FileNotFoundError:
-            raise self._fail(f"no {name} written yet for {slot}") from None
+            raise NoOffsetYet(f"{self.describe}: no {name} written yet for {slot}") from None
         except (OSError, UnicodeDecodeError) as exc:
             raise self._fail(f"cannot read {name} ({exc})") from None
         try:

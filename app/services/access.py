@@ -213,5 +213,32 @@ def set_password(session: Session, name: str, password: str | None = None) -> tu
     return user, password
 
 
+def get_user(session: Session, user_id: int) -> User:
+    from app.services.errors import NotFound
+
+    user = session.get(User, user_id)
+    if user is None:
+        raise NotFound(f"user {user_id} not found")
+    return user
+
+
+def set_user_disabled(session: Session, user_id: int, disabled: bool, by: str) -> User:
+    """Disable (sign out, refuse sign-in) or enable a user. Nobody disables themselves or the last admin."""
+    user = get_user(session, user_id)
+    if disabled and user.disabled_at is None:
+        if user.name == by:
+            raise Conflict("you cannot disable your own account; ask another admin")
+        if user.role == "admin" and not session.exec(select(User).where(
+                User.role == "admin", User.id != user.id, col(User.disabled_at).is_(None))).first():
+            raise Conflict(f"{user.name} is the last active admin; make another admin first")
+        user.disabled_at = utcnow()
+        end_sessions(session, user.id)
+    elif not disabled:
+        user.disabled_at = None
+    session.add(user)
+    session.flush()
+    return user
+
+
 def list_api_keys(session: Session) -> list[ApiKey]:
     return list(session.exec(select(ApiKey).order_by(ApiKey.id)).all())

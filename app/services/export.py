@@ -14,9 +14,9 @@ from datetime import datetime, timezone
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, col, select
 
-from app.machine import ControllerError, WorkOffset, make_controller, slot_number
+from app.machine import ControllerError, NoOffsetYet, WorkOffset, make_controller, slot_number
 from app.services.audit import audit, audit_apart
-from app.services.errors import Conflict, Invalid, Unavailable
+from app.services.errors import Conflict, Invalid, NotFound, Unavailable
 from app.services.machines import get_machine
 from app.services.setups import get_setup
 from app.store.models import Export, utcnow
@@ -81,6 +81,8 @@ def reconcile(session: Session, row: Export, controller, machine_id: int | None,
     ``unknown`` while the controller cannot be read."""
     try:
         back = controller.read_offset(row.slot)
+    except NoOffsetYet as exc:       # the controller answers and holds nothing there: nothing arrived
+        return _settle(session, row, "failed", f"not written: {exc}", actor, machine_id)
     except ControllerError as exc:
         return _settle(session, row, "unknown", f"outcome unknown and the controller cannot be read ({exc}); "
                                                 "it is read back again before any retry and at start-up",
@@ -221,27 +223,36 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
         audit(session, actor, "export.attempt", setup_id=setup_id, machine_id=machine.id, slot=slot,
               export_id=row.id, idempotency_key=key)
         session.commit()  # the attempt is on record before the controller is touched
+        why = ""
         try:
             before = controller.read_offset(slot)
+        except NoOffsetYet as exc:
+            # nothing to show side by side: the first write to a slot is acknowledged like a large change
+            before = None
+            why = (f"{exc}, so there is no current {slot} to compare the change with; check the new values "
+                   "and export again with acknowledge_change=true")
         except ControllerError as exc:
             _settle(session, row, "failed", f"controller unreachable ({exc}); nothing was written", actor, machine.id)
             events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": str(exc)})
             raise Unavailable(f"{exc}; nothing was written") from None
-        d_mm, d_deg = offset.difference(before)
-        if (d_mm > settings.max_offset_change_mm or d_deg > settings.max_offset_change_deg) and not acknowledge_change:
-            why = (f"the new {slot} differs from the controller's current one by {d_mm:.3f} mm / "
-                   f"{d_deg:.3f}° (limits {settings.max_offset_change_mm} mm / "
-                   f"{settings.max_offset_change_deg}°); compare them and export again with "
-                   "acknowledge_change=true if this is intended")
-            row.before = before.as_dict()
+        before_dict = before.as_dict() if before is not None else None
+        if before is not None:
+            d_mm, d_deg = offset.difference(before)
+            if d_mm > settings.max_offset_change_mm or d_deg > settings.max_offset_change_deg:
+                why = (f"the new {slot} differs from the controller's current one by {d_mm:.3f} mm / "
+                       f"{d_deg:.3f}° (limits {settings.max_offset_change_mm} mm / "
+                       f"{settings.max_offset_change_deg}°); compare them and export again with "
+                       "acknowledge_change=true if this is intended")
+        if why and not acknowledge_change:
+            row.before = before_dict
             _settle(session, row, "failed", f"refused, nothing written: {why}", actor, machine.id)
             refused = Conflict(why)
             refused.audited = True  # the row and its export.failed entry say it already
             raise refused
-        row.status, row.written, row.before, row.updated_at = "writing", offset.as_dict(), before.as_dict(), utcnow()
+        row.status, row.written, row.before, row.updated_at = "writing", offset.as_dict(), before_dict, utcnow()
         session.add(row)
         audit(session, actor, "export.write", setup_id=setup_id, machine_id=machine.id, slot=slot,
-              before=before.as_dict(), written=offset.as_dict(), controller=controller.describe)
+              before=before_dict, written=offset.as_dict(), controller=controller.describe)
         session.commit()  # "writing" is on record before the write: a crash from here on is reconciled
         try:
             controller.write_offset(slot, offset)
@@ -283,6 +294,8 @@ def read_current_offset(session: Session, machine_id: int, slot: str) -> WorkOff
     controller = make_controller(machine.controller)
     try:
         return controller.read_offset(slot)
+    except NoOffsetYet as exc:
+        raise NotFound(f"{exc}; the first export will write it") from None
     except ControllerError as exc:
         raise Unavailable(str(exc)) from None
     finally:

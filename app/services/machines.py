@@ -34,6 +34,19 @@ def validate_travel(travel: dict) -> dict:
     return out
 
 
+#: controller settings the API never shows (answered as MASK)
+SECRET_KEYS = ("password", "connect_password", "enable_password")
+MASK = "***"
+
+
+def keep_masked_secrets(new: dict | None, old: dict | None) -> dict | None:
+    """A settings dict sent back as it was read has MASK for each secret: keep the stored value then
+    (same controller kind only), so editing a machine never turns its password into "***"."""
+    if not new or not old or new.get("kind") != old.get("kind"):
+        return new
+    return {k: (old.get(k) if k in SECRET_KEYS and v == MASK else v) for k, v in new.items()}
+
+
 def validate_controller(controller: dict | None) -> dict | None:
     from app.machine import parse_controller_settings
 
@@ -111,7 +124,7 @@ def update_machine(session: Session, machine_id: int, changes: dict[str, Any]) -
     if "camera_ids" in changes:
         m.camera_ids = _check_cameras(session, changes["camera_ids"])
     if "controller" in changes:
-        m.controller = validate_controller(changes["controller"])
+        m.controller = validate_controller(keep_masked_secrets(changes["controller"], m.controller))
     session.add(m)
     session.flush()
     return m

@@ -12,7 +12,7 @@ from sqlalchemy import event
 from sqlalchemy.engine import Engine
 from sqlmodel import Session, create_engine
 
-ALEMBIC_DIR = Path(__file__).resolve().parent.parent.parent / "alembic"
+from app.resources import bundled_dir
 
 
 def make_engine(database_url: str) -> Engine:
@@ -38,7 +38,7 @@ def make_engine(database_url: str) -> Engine:
 
 def alembic_config(database_url: str) -> Config:
     cfg = Config()
-    cfg.set_main_option("script_location", str(ALEMBIC_DIR))
+    cfg.set_main_option("script_location", str(bundled_dir("alembic")))
     cfg.set_main_option("sqlalchemy.url", database_url.replace("%", "%%"))
     return cfg
 

@@ -32,6 +32,12 @@ def viser_index_html() -> str:
     return (Path(viser.__file__).parent / "client" / "build" / "index.html").read_text()
 
 
+@lru_cache(maxsize=1)
+def viewer_html() -> str:
+    """viser's page plus our one script that closes its software-rendering notice (see the script)."""
+    return viser_index_html().replace("</head>", '<script src="/static/viewer-quiet.js"></script></head>', 1)
+
+
 def principal_of(app, cookies, headers):
     """The caller (``app.services.access.Principal``) from a session cookie or bearer token, or None.
     The relay lets through only what the REST API would."""
@@ -60,7 +66,7 @@ def viewer_page(request: Request, kind: ViewKind, ident: int) -> HTMLResponse:
     if principal_of(request.app, request.cookies, request.headers) is None:
         return HTMLResponse("<p style='font: 18px sans-serif'>Sign in first: <a href='/login' target='_top'>sign in</a>.</p>",
                             status_code=401)
-    return HTMLResponse(viser_index_html(), headers={"Cache-Control": "no-cache"})
+    return HTMLResponse(viewer_html(), headers={"Cache-Control": "no-cache"})
 
 
 @router.websocket("/viewer/{kind}/{ident}")

@@ -66,7 +66,7 @@ function when(iso) {
 async function fillMachines(select, selectedId) {
   const machines = await api("/api/v1/machines");
   select.innerHTML = "";
-  if (!machines.length) select.append(el("option", { value: "", text: "No machine yet: add one in the API (/docs)" }));
+  if (!machines.length) select.append(el("option", { value: "", text: "No machine yet: an admin adds one on the Machines page" }));
   for (const m of machines) select.append(el("option", { value: m.id, text: m.name, selected: String(m.id) === String(selectedId) }));
   return machines;
 }
@@ -91,3 +91,33 @@ document.addEventListener("DOMContentLoaded", async () => {
     who.replaceChildren(el("a", { href: "/login?next=" + encodeURIComponent(location.pathname + location.search), text: "Sign in" }));
   }
 });
+
+/** Who is signed in ({name, kind, role}), asked once per page; null when nobody is. */
+let _me = null;
+function whoAmI() {
+  _me = _me || api("/api/v1/auth/me").catch(() => null);
+  return _me;
+}
+
+/** Parse a JSON text field; throw an Error that names the field when it is not JSON. */
+function parseJSONField(text, what) {
+  try { return JSON.parse(text); } catch (e) { throw new Error(`${what} is not valid JSON (${e.message}).`); }
+}
+
+/** Admin pages (machines, cameras): the admin gets the .admin-only buttons; everyone else sees the form's
+ *  #fields read-only with a note. Resolves to true for an admin. (The page shows its #add button once
+ *  its lists are loaded, so a new form never opens with empty choices.) */
+async function adminMode(noun) {
+  const me = await whoAmI();
+  const admin = !!me && me.role === "admin";
+  document.getElementById("fields").disabled = !admin;
+  for (const b of document.querySelectorAll(".admin-only")) b.classList.toggle("hidden", !admin);
+  document.getElementById("readonly-note").textContent = admin ? "" : `Read-only: only an admin changes ${noun}.`;
+  return admin;
+}
+
+/** PATCH ``base/id`` when editing, POST ``base`` when new; resolves to the answer. */
+function saveJSON(base, id, body) {
+  if (id === null || id === undefined) return postJSON(base, body);
+  return api(`${base}/${id}`, { method: "PATCH", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
+}

@@ -445,6 +445,7 @@ document.addEventListener("DOMContentLoaded", async () => {
   $("export").addEventListener("click", () => exportOffset(false));
   $("export-anyway").addEventListener("click", () => exportOffset(true));
   setActions(false);
+  setBusy(true);   // no capture or upload before the machines are listed ("Choose the machine first")
   try {
     const machineId = qs("machine") || localStorage.getItem("setupcam.machine");
     [state.machines] = await Promise.all([fillMachines($("machine"), machineId), loadParts(), detectExport()]);
@@ -457,6 +458,7 @@ document.addEventListener("DOMContentLoaded", async () => {
   } catch (e) {
     fail(e.message);
   }
+  setBusy(false);
   const setupId = qs("setup");
   if (setupId) await loadSetup(setupId);
   startPolling();

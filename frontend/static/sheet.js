@@ -54,6 +54,8 @@ function show(d) {
   document.getElementById("reason").textContent = `frame ${d.frame_index}: ${d.reason}` + actionText(d.action);
   if (d.picture_url) {
     document.getElementById("lastpic").src = d.picture_url;
+    document.getElementById("lastpic").classList.remove("hidden");
+    document.getElementById("lastnone").classList.add("hidden");
     document.getElementById("lastlink").href = d.picture_url;
   }
 }
@@ -87,6 +89,7 @@ async function open(id) {
     monitor = await api(`/api/v1/sheet/monitors/${id}?recent=1`);
   } catch (e) { return say("#msg", e.message, "bad"); }
   say("#msg", "");
+  document.getElementById("monitor-view").classList.remove("hidden");
   const a = monitor.alignment, off = a.result && a.result.offset;
   document.getElementById("picture").src = a.picture_url || a.image_url;
   document.getElementById("offset").textContent = off ?
@@ -106,7 +109,8 @@ async function open(id) {
   const sel = document.getElementById("monitor");
   let list = [];
   try { list = await api("/api/v1/sheet/monitors?limit=50"); } catch (e) { return say("#msg", e.message, "bad"); }
-  if (!list.length) { sel.append(el("option", { value: "", text: "No monitor yet" })); return say("#msg", "No sheet monitor has been started yet (POST /api/v1/sheet/monitors).", "info"); }
+  if (!list.length) { sel.append(el("option", { value: "", text: "No monitor yet" })); return say("#msg", "No sheet is being monitored. Monitoring starts when a sheet on a cutting bed has been "
+    + "aligned and confirmed (by the MES or a cell script); its corners, decisions and a Stop button then show here.", "info"); }
   const want = qs("monitor") || String(list[0].id);
   for (const m of list) sel.append(el("option", { value: m.id, selected: String(m.id) === want, text: `#${m.id} (${m.state})` }));
   sel.addEventListener("change", () => open(sel.value));

@@ -78,3 +78,38 @@ def test_cli_makes_users_and_keys(tmp_path):
     assert r.returncode == 2 and "exists already" in r.stderr
     r = run("apikey", "create", "--scope", "mes", "--name", "line 1")
     assert r.returncode == 0 and "key (shown once): sck_" in r.stdout
+
+
+def test_admin_lists_disables_and_resets_users_and_lists_keys(server):
+    with server.client("admin") as c:
+        uid = c.post("/api/v1/users", json={"name": "carla", "role": "operator", "password": "carla-pw-1"}).json()["id"]
+        users = {u["name"]: u for u in c.get("/api/v1/users").json()}
+        assert users["carla"] == {**users["carla"], "role": "operator", "disabled": False}
+        assert "password_hash" not in users["carla"]
+        with server.client(None) as anon:
+            assert anon.post("/api/v1/auth/login", json={"name": "carla", "password": "carla-pw-1"}).status_code == 200
+            assert anon.get("/api/v1/auth/me").status_code == 200
+
+            r = c.patch(f"/api/v1/users/{uid}", json={"disabled": True})
+            assert r.status_code == 200 and r.json()["disabled"] is True
+            assert anon.get("/api/v1/auth/me").status_code == 401, "disabling ends the open session"
+            assert anon.post("/api/v1/auth/login", json={"name": "carla", "password": "carla-pw-1"}).status_code == 401
+            assert c.patch(f"/api/v1/users/{uid}", json={"disabled": False}).json()["disabled"] is False
+
+            r = c.post(f"/api/v1/users/{uid}/password", json={})
+            assert r.status_code == 200 and r.json()["name"] == "carla"
+            new = r.json()["password"]
+            assert anon.post("/api/v1/auth/login", json={"name": "carla", "password": "carla-pw-1"}).status_code == 401
+            assert anon.post("/api/v1/auth/login", json={"name": "carla", "password": new}).status_code == 200
+
+        me = users["test-admin"]["id"]
+        r = c.patch(f"/api/v1/users/{me}", json={"disabled": True})
+        assert r.status_code == 409 and "your own account" in r.json()["detail"]
+        assert c.post("/api/v1/users/99999/password", json={}).status_code == 404
+
+        key = c.post("/api/v1/apikeys", json={"name": "line 2", "scope": "mes"}).json()
+        listed = {k["id"]: k for k in c.get("/api/v1/apikeys").json()}[key["id"]]
+        assert listed["prefix"] == key["key"][:12] and listed["revoked"] is False
+        assert key["key"] not in str(c.get("/api/v1/apikeys").json()), "the secret is never listed"
+    with server.client("operator") as c:
+        assert c.get("/api/v1/users").status_code == 403 and c.get("/api/v1/apikeys").status_code == 403

@@ -141,3 +141,14 @@ def test_calibration_rejects_non_image(client):
     r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations", files=[("images", ("a.jpg", b"hello"))] * 3,
                     data={"board": json.dumps(board)})
     assert r.status_code == 422 and "not a readable image" in r.json()["detail"]
+
+
+def test_board_pdf_for_printing(client):
+    board = '{"kind": "charuco", "squares": [5, 7], "square_mm": 40, "marker_mm": 20, "dictionary": "DICT_6X6_250"}'
+    r = client.get("/api/v1/cameras/board.pdf", params={"board": board})
+    assert r.status_code == 200 and r.headers["content-type"] == "application/pdf" and r.content.startswith(b"%PDF-")
+    r = client.get("/api/v1/cameras/board.pdf", params={"board": '{"kind": "chessboard", "inner_corners": [30, 20], '
+                                                                 '"square_mm": 30}'})
+    assert r.status_code == 422 and "does not fit on A3" in r.json()["detail"]
+    r = client.get("/api/v1/cameras/board.pdf", params={"board": '{"kind": "charuco", "squares": [5, 7]}'})
+    assert r.status_code == 422 and r.json()["detail"] == "board.square_mm: Field required"

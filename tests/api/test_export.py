@@ -151,3 +151,28 @@ def test_opcua_export_and_controller_dying_mid_write(server):
     finally:
         ok.stop()
         dying.stop()
+
+
+def test_file_controller_first_export_needs_acknowledgement_then_reads_back(server, tmp_path):
+    """A file drop that was never written for a slot has no current offset: reading it is a 404 with the
+    reason (not a 502), the first export asks for an acknowledgement, then writes and reads the file back."""
+    folder = tmp_path / "nc"
+    folder.mkdir()
+    with server.client() as c:
+        machine = make_machine(c, {"kind": "file", "dialect": "linuxcnc", "folder": str(folder)})
+    sid = located_setup(server, machine["id"], pose_from_xyz_euler(100, 50, 0, 0, 0, 10))
+    with server.client("operator") as c:
+        r = c.get(f"/api/v1/machines/{machine['id']}/offsets/G55")
+        assert r.status_code == 404 and "no" in r.json()["detail"] and "written yet for G55" in r.json()["detail"]
+        assert c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": 1}).status_code == 200
+        r = c.post(f"/api/v1/setups/{sid}/export", json={"slot": "G55"})
+        assert r.status_code == 409 and "no current G55 to compare the change with" in r.json()["detail"]
+        assert list(folder.iterdir()) == [], "nothing written without the acknowledgement"
+        r = c.post(f"/api/v1/setups/{sid}/export", json={"slot": "G55", "acknowledge_change": True})
+        assert r.status_code == 200, r.text
+        body = r.json()
+        assert body["status"] == "verified" and body["before"] is None
+        assert body["read_back"]["x_mm"] == pytest.approx(body["written"]["x_mm"], abs=1e-3)
+        current = c.get(f"/api/v1/machines/{machine['id']}/offsets/G55").json()
+        assert current["c_deg"] == pytest.approx(10.0, abs=1e-3)
+    assert [p.name for p in folder.iterdir() if not p.name.startswith(".")]

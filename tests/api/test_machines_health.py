@@ -73,3 +73,29 @@ def test_openapi_has_stable_operation_ids(client):
     spec = client.get("/openapi.json").json()
     ids = {op["operationId"] for path in spec["paths"].values() for op in path.values()}
     assert {"models-create_model", "cameras-calibrate", "machines-create_machine", "health-health"} <= ids
+
+
+def test_editing_a_machine_keeps_its_masked_controller_password(client, server, table_id):
+    """The machines page sends the controller back as it read it ("***" for secrets): the stored password
+    stays, and a new one replaces it; a new controller kind starts without the old secrets."""
+    from app.services.machines import get_machine
+    from app.store.db import session_scope
+
+    ctl = {"kind": "linuxcnc", "host": "10.0.0.5", "port": 5007, "connect_password": "s3cret"}
+    m = client.post("/api/v1/machines", json={"name": "Mill 4", "table_model_id": table_id, "travel_mm": TRAVEL,
+                                              "controller": ctl}).json()
+    shown = m["controller"]
+    assert shown["connect_password"] == "***" and "s3cret" not in str(m)
+
+    def stored() -> dict:
+        with session_scope(server.app.state.engine) as session:
+            return dict(get_machine(session, m["id"]).controller)
+
+    r = client.patch(f"/api/v1/machines/{m['id']}", json={"controller": {**shown, "host": "10.0.0.6"}})
+    assert r.status_code == 200, r.text
+    assert stored()["host"] == "10.0.0.6" and stored()["connect_password"] == "s3cret"
+    client.patch(f"/api/v1/machines/{m['id']}", json={"controller": {**shown, "connect_password": "n3w"}})
+    assert stored()["connect_password"] == "n3w"
+    client.patch(f"/api/v1/machines/{m['id']}", json={"controller": {"kind": "file", "dialect": "fanuc",
+                                                                     "folder": "/tmp"}})
+    assert "connect_password" not in stored()

@@ -9,7 +9,7 @@ from tests.support.live_server import live_server
 
 pytestmark = pytest.mark.integration
 
-PAGES = ("/", "/machines", "/setup", "/history", "/library", "/camera", "/login")
+PAGES = ("/", "/machines", "/setup", "/history", "/library", "/camera", "/cameras", "/users", "/login")
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +25,7 @@ def test_pages_have_title_and_navigation(service):
             assert r.status_code == 200 and r.headers["content-type"].startswith("text/html"), path
             html = r.text
             assert html.startswith("<!doctype html>") and "· setupcam</title>" in html
-            for link in ("/machines", "/setup", "/history", "/library", "/camera"):
+            for link in ("/machines", "/setup", "/history", "/library", "/sheet", "/rotary", "/cameras", "/users"):
                 assert f'href="{link}"' in html
             assert "{{" not in html and "<!-- title:" not in html
 
@@ -55,3 +55,20 @@ def test_viewer_needs_sign_in(service):
         r = c.get("/viewer/setup/1/")
         assert r.status_code == 200 and len(r.text) > 100_000   # viser's self-contained client
         assert c.get("/viewer/other/1/").status_code == 422
+
+
+def test_api_docs_load_only_from_the_service(service):
+    """/docs and /redoc reference no outside address; their bundles come from /docs-assets/ only."""
+    import re
+
+    with service.client(None) as c:
+        for path in ("/docs", "/redoc"):
+            html = c.get(path).text
+            refs = re.findall(r'(?:src|href|spec-url|data-openapi)="([^"]+)"', html)
+            assert refs and all(r.startswith("/") for r in refs), (path, refs)
+        for name, kind in (("swagger-ui-bundle.js", "text/javascript"), ("redoc.standalone.js", "text/javascript"),
+                           ("swagger-ui.css", "text/css")):
+            r = c.get(f"/docs-assets/{name}")
+            assert r.status_code == 200 and r.headers["content-type"].startswith(kind) and len(r.content) > 100_000
+        assert c.get("/docs-assets/core.py").status_code == 404          # package code is not served
+        assert c.get("/docs-assets/..%2F__init__.py").status_code == 404

@@ -24,6 +24,19 @@ def _jpg(img) -> bytes:
     return cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
 
 
+def test_sheet_page_without_a_monitor_says_so_in_words(tmp_path):
+    with live_server(tmp_path / "data", "sqlite", load_example_library=False) as srv:
+        with signed_in_page(srv) as (page, errors):
+            page.goto(f"{srv.url}/sheet")
+            msg = page.get_by_test_id("status-message")
+            msg.filter(has_text="No sheet is being monitored").wait_for()
+            assert "/api/" not in msg.inner_text()
+            assert not page.get_by_test_id("stop-button").is_visible()
+            assert not page.get_by_test_id("alignment-picture").is_visible()
+            assert page.locator("header.top nav a[href='/sheet']").count() == 1
+            assert errors == []
+
+
 def test_sheet_page_shows_live_decisions_chart_and_stops(tmp_path):
     with live_server(tmp_path / "data", "sqlite") as srv:
         with srv.client("admin") as c:
@@ -40,6 +53,8 @@ def test_sheet_page_shows_live_decisions_chart_and_stops(tmp_path):
             seq = drift_sequence(SCENE, CAM, [(0, 0, 0), (0.4, 0, 0), (1.5, 0.5, 0.1)])
             with signed_in_page(srv, viewport=(1280, 900)) as (page, errors):
                 page.goto(f"{srv.url}/sheet?monitor={mid}")
+                page.locator("#lastnone").filter(has_text="None so far").wait_for()   # no broken picture
+                assert not page.get_by_test_id("decision-picture").is_visible()
                 page.get_by_test_id("thresholds").filter(has_text="L2 = 4.00 mm").wait_for()
                 for f in seq.frames:
                     assert c.post(f"/api/v1/sheet/monitors/{mid}/frames", files={"frame": ("f.jpg", _jpg(f))}).status_code == 200

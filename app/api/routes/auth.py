@@ -53,6 +53,40 @@ class UserCreated(BaseModel):
                                                                      "A given password is never sent back.")
 
 
+class UserPublic(BaseModel):
+    id: int
+    name: str
+    role: str
+    disabled: bool
+    created_at: datetime
+
+
+class UserChange(BaseModel):
+    disabled: bool = Field(description="true: signed out and refused at sign-in; false: may sign in again")
+
+
+class PasswordReset(BaseModel):
+    password: str | None = Field(default=None, description="Default: a random password, answered once")
+
+
+class PasswordAnswer(BaseModel):
+    name: str
+    password: str = Field(description="Shown once")
+
+
+class ApiKeyPublic(BaseModel):
+    id: int
+    name: str
+    scope: str
+    prefix: str = Field(description="The key's first characters, to recognise it; never the key")
+    created_at: datetime
+    revoked: bool
+
+
+def _user_public(u) -> UserPublic:
+    return UserPublic(id=u.id, name=u.name, role=u.role, disabled=u.disabled_at is not None, created_at=u.created_at)
+
+
 class ApiKeyCreate(BaseModel):
     name: str = Field(default="", max_length=100, examples=["MES line 2"])
     scope: str = Field(examples=["mes"], description="mes: create setups, read results | admin")
@@ -119,6 +153,30 @@ def create_user(request: Request, session: SessionDep, admin: AdminPrincipal, bo
     audit(session, admin.label(), "user.create", user=user.name, role=user.role, address=_address(request))
     return UserCreated(id=user.id, name=user.name, role=user.role,
                        initial_password=None if body.password else password)
+
+
+@router.get("/users", response_model=list[UserPublic], summary="List users (admin)")
+def list_users(session: SessionDep, _admin: AdminPrincipal) -> list[UserPublic]:
+    return [_user_public(u) for u in access.list_users(session)]
+
+
+@router.patch("/users/{user_id}", response_model=UserPublic, summary="Disable or enable a user (admin)",
+              responses={409: {"description": "your own account, or the last active admin"}})
+def change_user(session: SessionDep, admin: AdminPrincipal, user_id: int, body: UserChange) -> UserPublic:
+    return _user_public(access.set_user_disabled(session, user_id, body.disabled, by=admin.name))
+
+
+@router.post("/users/{user_id}/password", response_model=PasswordAnswer,
+             summary="Reset a user's password (admin); their sessions end")
+def reset_password(session: SessionDep, _admin: AdminPrincipal, user_id: int, body: PasswordReset) -> PasswordAnswer:
+    user, password = access.set_password(session, access.get_user(session, user_id).name, body.password)
+    return PasswordAnswer(name=user.name, password=password)
+
+
+@router.get("/apikeys", response_model=list[ApiKeyPublic], summary="List API keys (admin; never their secrets)")
+def list_api_keys(session: SessionDep, _admin: AdminPrincipal) -> list[ApiKeyPublic]:
+    return [ApiKeyPublic(id=k.id, name=k.name, scope=k.scope, prefix=k.prefix, created_at=k.created_at,
+                         revoked=k.revoked_at is not None) for k in access.list_api_keys(session)]
 
 
 @router.post("/apikeys", status_code=status.HTTP_201_CREATED, response_model=ApiKeyCreated,

@@ -6,7 +6,7 @@ from datetime import datetime
 from typing import Annotated, Any
 
 import cv2
-from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile, status
 from pydantic import BaseModel, Field
 
 from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
@@ -70,6 +70,30 @@ def create_camera(session: SessionDep, admin: AdminPrincipal, body: CameraCreate
 @router.get("", response_model=list[CameraPublic], summary="List cameras")
 def list_cameras(session: SessionDep) -> list[CameraPublic]:
     return [_public(c) for c in svc.list_cameras(session)]
+
+
+@router.get("/board.pdf", response_class=Response, summary="A calibration board to print, at true scale (PDF)",
+            responses={200: {"content": {"application/pdf": {}}},
+                       422: {"description": "bad board description, or a board larger than A3"}})
+def board_pdf(board: Annotated[str, Query(description="Board JSON, as for a calibration run", examples=[
+        '{"kind": "charuco", "squares": [5, 7], "square_mm": 40, "marker_mm": 20, "dictionary": "DICT_6X6_250"}'])]
+              ) -> Response:
+    from pydantic import ValidationError
+
+    from app.vision.board_print import board_sheet_pdf
+    from app.vision.calibration import BoardSpec
+
+    try:
+        spec = BoardSpec.model_validate(json_form(board, "board"))
+        pdf = board_sheet_pdf(spec)
+    except ValidationError as exc:
+        e = exc.errors()[0]
+        where = ".".join(["board", *map(str, e["loc"])])
+        raise Invalid(f"{where}: {e['msg'].removeprefix('Value error, ')}") from None
+    except ValueError as exc:
+        raise Invalid(f"board: {exc}") from None
+    name = f"setupcam-{spec.kind}-board.pdf"
+    return Response(pdf, media_type="application/pdf", headers={"Content-Disposition": f'inline; filename="{name}"'})
 
 
 @router.get("/{camera_id}", response_model=CameraPublic, summary="One camera")

@@ -59,14 +59,11 @@ class MachinePublic(BaseModel):
     created_at: datetime
 
 
-SECRET_KEYS = ("password", "connect_password", "enable_password")
-
-
 def _public(m) -> MachinePublic:
     """Controller passwords never leave the service."""
     pub = MachinePublic.model_validate(m, from_attributes=True)
     if pub.controller:
-        pub.controller = {k: ("***" if k in SECRET_KEYS and v else v) for k, v in pub.controller.items()}
+        pub.controller = {k: (svc.MASK if k in svc.SECRET_KEYS and v else v) for k, v in pub.controller.items()}
     return pub
 
 

@@ -11,15 +11,16 @@ from functools import lru_cache
 from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse
 
+from app.resources import bundled_dir
 from app.viewer import relay
 
-FRONTEND_DIR = Path(__file__).resolve().parents[3] / "frontend"
+FRONTEND_DIR = bundled_dir("frontend")   # the checkout's frontend/ or the installed copy
 STATIC_DIR = FRONTEND_DIR / "static"
 
 # URL -> HTML file in frontend/
 PAGES = {"": "index.html", "machines": "machines.html", "setup": "setup.html", "history": "history.html",
          "library": "library.html", "camera": "camera.html", "login": "login.html", "sheet": "sheet.html",
-         "rotary": "rotary.html"}
+         "rotary": "rotary.html", "cameras": "cameras.html", "users": "users.html"}
 STATIC_TYPES = {".css": "text/css", ".js": "text/javascript", ".svg": "image/svg+xml", ".png": "image/png",
                 ".ico": "image/x-icon"}
 

@@ -1,0 +1,157 @@
+// Machines: every signed-in user picks the machine here; admins add, change and delete machines
+// (operators see the same form read-only). Test connection reads the controller's offset in a slot.
+"use strict";
+const $ = (id) => document.getElementById(id);
+const state = { machines: [], tables: [], cameras: [], editing: null, admin: false };
+const AXES = ["x", "y", "z"];
+
+/** T_machine_table from the X, Y, Z, C fields: a turn C about z, then the corner's position (mm). */
+function poseFromFields() {
+  const c = Number($("t-c").value) * Math.PI / 180, co = Math.cos(c), si = Math.sin(c);
+  return [[co, -si, 0, Number($("t-x").value)], [si, co, 0, Number($("t-y").value)],
+          [0, 0, 1, Number($("t-z").value)], [0, 0, 0, 1]];
+}
+
+/** C (deg) of the table's x edge from the corner (fields X, Y) to a second point on that edge. */
+function angleFromPoints() {
+  const dx = Number($("p2-x").value) - Number($("t-x").value), dy = Number($("p2-y").value) - Number($("t-y").value);
+  const len = Math.hypot(dx, dy);
+  if (!($("p2-x").value && $("p2-y").value) || len < 50) {
+    throw new Error("Type the second point's X and Y: a point on the table's front edge at least 50 mm from the corner.");
+  }
+  return { c: Math.atan2(dy, dx) * 180 / Math.PI, len };
+}
+
+function fieldsFromPose(T) {
+  $("t-x").value = +T[0][3].toFixed(4); $("t-y").value = +T[1][3].toFixed(4); $("t-z").value = +T[2][3].toFixed(4);
+  $("t-c").value = +(Math.atan2(T[1][0], T[0][0]) * 180 / Math.PI).toFixed(4);
+  const tilted = Math.abs(T[2][2] - 1) > 1e-9;
+  $("tilt-note").classList.toggle("hidden", !tilted);
+  $("tilt-note").textContent = tilted ? "This table is tilted against the machine's Z; saving here sets it level." : "";
+}
+
+function showControllerFields() {
+  const kind = $("c-kind").value;
+  for (const e of document.querySelectorAll(".ctl")) e.classList.toggle("hidden", !e.classList.contains(kind));
+}
+
+function controllerFromFields() {
+  const kind = $("c-kind").value;
+  if (!kind) return null;
+  const old = state.editing && state.editing.controller && state.editing.controller.kind === kind ? state.editing.controller : {};
+  if (kind === "opcua") return parseJSONField($("c-json").value, "The OPC UA settings");
+  if (kind === "linuxcnc") return { ...old, kind, host: $("c-host").value.trim(), port: Number($("c-port").value) };
+  return { ...old, kind, dialect: $("c-dialect").value, folder: $("c-folder").value.trim() };
+}
+
+function fillForm(m) {
+  state.editing = m;
+  $("form-title").textContent = m ? m.name : "New machine";
+  $("m-name").value = m ? m.name : "";
+  $("m-table").replaceChildren(...state.tables.map((t) => el("option", { value: t.id, text: t.name, selected: m && m.table_model_id === t.id })));
+  $("m-cameras").replaceChildren(...state.cameras.map((c) => el("label", {},
+    el("input", { type: "checkbox", value: c.id, checked: m ? m.camera_ids.includes(c.id) : state.cameras.length === 1 }), c.name)));
+  if (!state.cameras.length) $("m-cameras").append(el("a", { href: "/cameras", text: "add a camera first" }));
+  fieldsFromPose(m ? m.T_machine_table : [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]);
+  for (const a of AXES) {
+    if (m) { $(`tr-${a}0`).value = m.travel_mm[a][0]; $(`tr-${a}1`).value = m.travel_mm[a][1]; }
+  }
+  const ctl = (m && m.controller) || {};
+  $("c-kind").value = ctl.kind || "";
+  $("c-host").value = ctl.host || ""; $("c-port").value = ctl.port || 5007;
+  $("c-dialect").value = ctl.dialect || "linuxcnc"; $("c-folder").value = ctl.folder || "";
+  $("c-json").value = ctl.kind === "opcua" ? JSON.stringify(ctl, null, 2)
+    : JSON.stringify({ kind: "opcua", endpoint: "opc.tcp://host:4840", nodes: { x: "ns=2;s={slot}.X", y: "ns=2;s={slot}.Y", z: "ns=2;s={slot}.Z" } }, null, 2);
+  showControllerFields();
+  $("delete").classList.toggle("hidden", !m || !state.admin);
+  $("test").disabled = !(m && m.controller);
+  $("test").title = m && m.controller ? "Read the controller's current offset in this slot with the saved settings"
+                                      : "Save the machine with a controller first";
+  say("#form-msg", "");
+  $("machine-form").classList.remove("hidden");
+  $("machine-form").scrollIntoView({ block: "nearest" });
+}
+
+function drawCards() {
+  const box = $("machines");
+  box.replaceChildren();
+  if (!state.machines.length) {
+    say("#msg", state.admin ? "No machine yet: press “Add a machine”. You need a camera (Cameras page) and a table model (Library)."
+                            : "No machine is set up yet. Ask an admin to add one.", "warn");
+  }
+  for (const m of state.machines) {
+    const cams = m.camera_ids.length ? `${m.camera_ids.length} camera(s)` : "no camera yet";
+    const ctl = m.controller ? m.controller.kind : "no controller";
+    box.append(el("div", { class: "card", "data-testid": "machine-card" },
+      el("h2", { text: m.name }),
+      el("p", { class: "muted", text: `Travel X ${m.travel_mm.x[0]}…${m.travel_mm.x[1]} mm · ${cams} · ${ctl}` }),
+      el("div", { class: "row" },
+        el("a", { class: "button primary", href: `/setup?machine=${m.id}`, text: "Set up here" }),
+        el("a", { class: "button", href: `/history?machine=${m.id}`, text: "History" }),
+        el("button", { type: "button", "data-testid": "machine-edit", text: state.admin ? "Edit" : "Details",
+                       onclick: () => fillForm(m) }))));
+  }
+}
+
+async function load() {
+  const [machines, tables, cameras] = await Promise.all([
+    api("/api/v1/machines"), api("/api/v1/models?kind=table&limit=500"), api("/api/v1/cameras")]);
+  state.machines = machines; state.tables = tables.data; state.cameras = cameras;
+  drawCards();
+}
+
+$("c-kind").addEventListener("change", showControllerFields);
+$("from-points").addEventListener("click", () => {
+  try {
+    const { c, len } = angleFromPoints();
+    $("t-c").value = +c.toFixed(4);
+    say("#form-msg", `C = ${fmt(c, 4)}° from two points ${fmt(len, 1)} mm apart (1 mm of error at the second point moves C by ${fmt(180 / Math.PI / len, 3)}°).`, "ok");
+  } catch (e) { say("#form-msg", e.message, "bad"); }
+});
+$("add").addEventListener("click", () => fillForm(null));
+$("close").addEventListener("click", () => $("machine-form").classList.add("hidden"));
+$("machine-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  try {
+    const body = {
+      name: $("m-name").value.trim(), table_model_id: Number($("m-table").value),
+      camera_ids: [...$("m-cameras").querySelectorAll("input:checked")].map((i) => Number(i.value)),
+      T_machine_table: poseFromFields(),
+      travel_mm: Object.fromEntries(AXES.map((a) => [a, [Number($(`tr-${a}0`).value), Number($(`tr-${a}1`).value)]])),
+      controller: controllerFromFields(),
+    };
+    const m = await saveJSON("/api/v1/machines", state.editing && state.editing.id, body);
+    await load();
+    fillForm(state.machines.find((x) => x.id === m.id));
+    say("#form-msg", `Saved “${m.name}”.${m.controller ? " Press Test connection to check the controller." : ""}`, "ok");
+    say("#msg", "");
+  } catch (e) { say("#form-msg", e.message, "bad"); }
+});
+$("delete").addEventListener("click", async () => {
+  const m = state.editing;
+  if (!m || !confirm(`Delete machine “${m.name}”? Its history stays.`)) return;
+  try {
+    await api(`/api/v1/machines/${m.id}`, { method: "DELETE" });
+    $("machine-form").classList.add("hidden");
+    await load();
+    say("#msg", `Deleted “${m.name}”.`, "ok");
+  } catch (e) { say("#form-msg", e.message, "bad"); }
+});
+$("test").addEventListener("click", async () => {
+  const m = state.editing, slot = $("test-slot").value;
+  say("#form-msg", `Reading ${slot} from the controller…`, "info");
+  try {
+    const o = await api(`/api/v1/machines/${m.id}/offsets/${slot}`);
+    say("#form-msg", `Connected. ${o.slot} now holds X ${fmt(o.x_mm, 3)}, Y ${fmt(o.y_mm, 3)}, Z ${fmt(o.z_mm, 3)} mm, C ${fmt(o.c_deg, 3)}°.`, "ok");
+  } catch (e) {
+    say("#form-msg", e.status === 404 ? `Reached, but: ${e.message}` : `No connection: ${e.message}`, e.status === 404 ? "warn" : "bad");
+  }
+});
+
+(async () => {
+  try {
+    state.admin = await adminMode("machines");
+    await load();
+    $("add").classList.toggle("hidden", !state.admin);
+  } catch (e) { say("#msg", e.message, "bad"); }
+})();
