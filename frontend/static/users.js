@@ -55,7 +55,7 @@ $("user-form").addEventListener("submit", (ev) => {
     const password = $("u-password").value;
     const r = await postJSON("/api/v1/users", { name: $("u-name").value.trim(), role: $("u-role").value, password: password || null });
     if (password) say("#user-msg", `User ${r.name} (${r.role}) added with the password you typed.`, "ok");
-    else showOnce($("user-msg"), `User ${r.name} (${r.role}) added. Password:`, r.password);
+    else showOnce($("user-msg"), `User ${r.name} (${r.role}) added. Password:`, r.initial_password);
     ev.target.reset();
     await loadUsers();
   });

@@ -171,7 +171,7 @@ def test_file_controller_first_export_needs_acknowledgement_then_reads_back(serv
         r = c.post(f"/api/v1/setups/{sid}/export", json={"slot": "G55", "acknowledge_change": True})
         assert r.status_code == 200, r.text
         body = r.json()
-        assert body["status"] == "verified" and body["before"] is None
+        assert body["status"] == "written" and body["before"] is None
         assert body["read_back"]["x_mm"] == pytest.approx(body["written"]["x_mm"], abs=1e-3)
         current = c.get(f"/api/v1/machines/{machine['id']}/offsets/G55").json()
         assert current["c_deg"] == pytest.approx(10.0, abs=1e-3)

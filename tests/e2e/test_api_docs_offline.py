@@ -76,7 +76,7 @@ def test_redoc_renders_offline(service, offline_page):
     page, outside, errors = offline_page
     page.goto(f"{service.url}/redoc")
     # Each operation gets a heading in the main column (the side menu keeps its copy folded).
-    page.locator("h2", has_text="Service and database status").wait_for(timeout=30_000)
+    page.locator("h2", has_text="Service, database and worker status").wait_for(timeout=30_000)
     assert page.locator("h1").first.inner_text().startswith("setupcam")
     page.screenshot(path=str(ARTIFACTS / "redoc-offline.png"))
     assert outside == [], f"/redoc tried to reach the internet: {outside}"
