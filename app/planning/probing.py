@@ -223,13 +223,33 @@ def probing_gcode(
     dry_run: bool = False,
     results_file: str = "setupcam_probe.txt",
     title: str = "setupcam probing",
+    header: Sequence[str] = (),
+    retract_z_mm: float | None = None,
+    method: str = "profile",
 ) -> ProbingProgram:
     """LinuxCNC program that visits ``touches`` in order from ``start_table`` and back to it.
 
     ``obstacles`` / ``travel_probe``: what the linking moves must clear (e.g. a :class:`HeightGrid`
     of the workpiece and clamps, the probe's tip as working distance 0 and its widest radius).
     Positions in the program are the tip in the program frame (``T_prog_table @ p_table``).
+    ``wcs``: the work-offset slot the program runs in (one of G54..G59.3, written as given in that
+    closed set, never pasted). ``header``: comment lines (see app.planning.probing_safety.header_lines)
+    written first. ``retract_z_mm``: table z of the tip for the first and last move (straight up or
+    down at the unknown start position; default: the start's z). ``method``: travel planner,
+    "profile" (default) or "reference" (the reference method, for comparison).
     """
+    from app.machine.base import SLOT_P_NUMBERS
+    from app.planning.probing_safety import comment
+    from app.planning.reference import ReferenceOptions, plan_path_reference
+
+    slot = str(wcs).upper()
+    if slot not in SLOT_P_NUMBERS:
+        raise ValueError(f"unknown work offset slot {wcs!r}; use one of {', '.join(SLOT_P_NUMBERS)}")
+    if method not in ("profile", "reference"):
+        raise ValueError(f"unknown travel method {method!r}; use 'profile' or 'reference'")
+    if any(not ln.startswith("(") or not ln.endswith(")") or "\n" in ln or ln.count("(") != 1 or ln.count(")") != 1
+           for ln in header):
+        raise ValueError("header lines must be single comments; build them with probing_safety.comment")
     T = np.eye(4) if T_prog_table is None else check_pose(T_prog_table, "T_prog_table")
     if tilt_deg(T) > 1e-6:
         raise ValueError("T_prog_table must not tilt: the program frame's z has to be the table's z")
@@ -238,26 +258,44 @@ def probing_gcode(
                          f"below an edge with {travel_probe.clearance_mm} mm clearance for the probe body; "
                          "reduce depth_mm or use a longer stylus")
     start = np.asarray(start_table, dtype=float).reshape(3)
+    retract = float(start[2] if retract_z_mm is None else retract_z_mm)
+    if not np.all(np.isfinite(start)) or not np.isfinite(retract):
+        raise ValueError("start and retract height must be finite numbers")
+    if retract < start[2]:
+        raise ValueError(f"retract height {retract:.3f} mm is below the start height {start[2]:.3f} mm")
     stops = [start] + [np.asarray(t.approach_tip) for t in touches] + [start]
     travel = []
     lines = [
         "%",
-        f"({title}{' - DRY RUN: probe moves as G1 to the nominal contact' if dry_run else ''})",
+        *header,
+        comment(f"{title}{' - DRY RUN: probe moves as G1 to the nominal contact' if dry_run else ''}"),
         "(units mm; positions are the probe tip = ball bottom; probe tool and its length offset must be active)",
-        f"G21 G90 G17 G94 G40 {wcs}",
-        "G53 G0 Z0 (retract to the top of machine travel)",
+        f"G21 G90 G17 G94 G40 {slot}",
     ]
+
+    def prog(p_table):
+        p = transform_points(T, p_table)[0]
+        if not np.all(np.isfinite(p)):
+            raise ValueError("a program position is not a finite number")
+        return p
+
+    z_retract = prog([start[0], start[1], retract])[2]  # no tilt: one z for every xy
+    lines.append(f"G0 Z{_fmt(z_retract)} (retract: above every obstacle by the clearance, inside the travel)")
     if not dry_run:
         lines.append(f"(PROBEOPEN {results_file})")
 
     def move(p_table, feed):
-        p = transform_points(T, p_table)[0]
-        return f"G1 {_xyz(p)} F{feed:.0f}"
+        return f"G1 {_xyz(prog(p_table))} F{feed:.0f}"
 
-    p0 = transform_points(T, start)[0]
+    p0 = prog(start)
     lines += [f"G0 X{_fmt(p0[0])} Y{_fmt(p0[1])}", f"G1 Z{_fmt(p0[2])} F{speeds.z_mm_min:.0f}"]
     for i in range(len(stops) - 1):
-        path = plan_path_profile([stops[i], stops[i + 1]], obstacles, travel_probe, ProfileOptions(speeds=speeds))
+        if method == "profile":
+            path = plan_path_profile([stops[i], stops[i + 1]], obstacles, travel_probe, ProfileOptions(speeds=speeds))
+        else:
+            margin = travel_probe.radius_mm + travel_probe.lateral_margin_mm
+            path = plan_path_reference([stops[i], stops[i + 1]], obstacles, travel_probe,
+                                       ReferenceOptions(box_margin_mm=margin))
         travel.append(path)
         lines.append(f"(travel to {'touch ' + touches[i].name if i < len(touches) else 'start'})")
         W = np.asarray(path.waypoints)
@@ -265,16 +303,15 @@ def probing_gcode(
             lines.append(move(b, segment_feed_mm_min(a, b, speeds)))
         if i < len(touches):
             t = touches[i]
-            lines.append(f"(touch {t.name}: face normal {np.round(t.normal, 4).tolist()})")
+            lines.append(comment(f"touch {t.name}: face normal {np.round(t.normal, 4).tolist()}"))
             if dry_run:
                 lines.append(move(t.contact_tip, params.probe_feed_mm_min))
             else:
-                p = transform_points(T, t.probe_end_tip)[0]
-                lines.append(f"G38.2 {_xyz(p)} F{params.probe_feed_mm_min:.0f}")
+                lines.append(f"G38.2 {_xyz(prog(t.probe_end_tip))} F{params.probe_feed_mm_min:.0f}")
             lines.append(move(t.approach_tip, params.probe_feed_mm_min * 5))
     if not dry_run:
         lines.append("(PROBECLOSE)")
-    lines += ["G53 G0 Z0", "M2", "%"]
+    lines += [f"G0 Z{_fmt(z_retract)}", "M2", "%"]
     return ProbingProgram(tuple(touches), tuple(travel), "\n".join(lines) + "\n", dry_run)
 
 

@@ -57,39 +57,243 @@ def plan(session: Session, files: FileStore, request: dict[str, Any]) -> dict:
         raise Invalid(str(exc)) from None
 
 
-def probing_program(session: Session, files: FileStore, setup_id: int, *, dry_run: bool,
-                    wcs: str = "G54") -> str:
-    """LinuxCNC probing program for the confirmed workpiece of a setup (table frame as program frame)."""
-    return probing_plan(session, files, setup_id, dry_run=dry_run, wcs=wcs).gcode
+#: query parameters of the probing program: a closed set, each value checked below
+PROGRAM_PARAMS = ("dialect", "dry_run", "wcs", "clearance_mm")
+#: dialects the probing program is written in (the NC-file dialects of app.machine.nc_files otherwise)
+PROBE_DIALECTS = ("linuxcnc",)
+CLEARANCE_RANGE_MM = (1.0, 20.0)
+#: the probe the program is planned for: ball, stylus and body (the travel planner's cylinder covers them)
+PROBE_BODY_RADIUS_MM, PROBE_BODY_LENGTH_MM = 15.0, 80.0
 
 
-def probing_plan(session: Session, files: FileStore, setup_id: int, *, dry_run: bool = True,
-                 wcs: str = "G54"):
-    """The probing program with its touches and safe travel paths (table frame, mm): ProbingProgram."""
+def controller_slots(controller: dict | None, dialect: str) -> tuple[str, ...]:
+    """Work-offset slots the machine's controller holds (a closed set): a file controller's dialect's
+    slots, an OPC UA controller's one slot unless its node ids carry {slot}/{p}, LinuxCNC's nine; without
+    a controller, the slots of the requested dialect."""
+    from app.machine import SLOT_P_NUMBERS, parse_controller_settings
+    from app.machine.nc_files import SLOTS
+
+    if not controller:
+        return SLOTS.get(dialect, ())
+    c = parse_controller_settings(controller)
+    if c.kind == "file":
+        return SLOTS[c.dialect]
+    if c.kind == "opcua":
+        ids = " ".join(v or "" for v in c.nodes.model_dump().values())
+        return tuple(SLOT_P_NUMBERS) if ("{slot}" in ids or "{p}" in ids) else (c.slot,)
+    return SLOTS["linuxcnc"]
+
+
+def check_program_params(machine, *, dialect: str, wcs: str, clearance_mm: float) -> tuple[str, str, float]:
+    """(dialect, slot, clearance) from the closed sets, or Invalid with a reason code: unknown_dialect,
+    dialect_not_supported, dialect_mismatch, wcs_not_a_slot, clearance_out_of_range."""
+    from app.machine.nc_files import DIALECTS
+
+    d = str(dialect).lower()
+    if d not in DIALECTS:
+        raise Invalid(f"dialect {dialect!r} is unknown; use one of {', '.join(DIALECTS)}", code="unknown_dialect")
+    if d not in PROBE_DIALECTS:
+        raise Invalid(f"probing programs are written for {', '.join(PROBE_DIALECTS)} only, not {d}",
+                      code="dialect_not_supported")
+    ctrl = machine.controller or {}
+    if ctrl.get("kind") == "file" and ctrl.get("dialect") != d:
+        raise Invalid(f"machine {machine.id} reads {ctrl.get('dialect')} files; a {d} program would not run there",
+                      code="dialect_mismatch")
+    slots = controller_slots(ctrl, d)
+    slot = str(wcs).upper()
+    if slot not in slots:
+        raise Invalid(f"wcs {wcs!r} is not a work-offset slot of machine {machine.id}'s controller; use one of "
+                      f"{', '.join(slots)}", code="wcs_not_a_slot")
+    c = float(clearance_mm)
+    lo, hi = CLEARANCE_RANGE_MM
+    if not np.isfinite(c) or not lo <= c <= hi:
+        raise Invalid(f"clearance_mm must be a finite number in [{lo}, {hi}] mm, got {clearance_mm!r}",
+                      code="clearance_out_of_range")
+    return d, slot, c
+
+
+def probing_program(session: Session, files: FileStore, settings, setup_id: int, *, dry_run: bool,
+                    wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0) -> str:
+    """LinuxCNC probing program for the confirmed workpiece of a setup (the datum frame in slot ``wcs``)."""
+    return probing_plan(session, files, settings, setup_id, dry_run=dry_run, wcs=wcs, dialect=dialect,
+                        clearance_mm=clearance_mm).gcode
+
+
+def _unlocated(session: Session, files: FileStore, s) -> list[tuple[str, float]]:
+    """(name, height as modelled in mm) of every object asked for but not located."""
+    from app.geometry.mesh import load_mesh
+    from app.services import library
+
+    asked = {int(m["model_id"]): m.get("revision") for m in (s.models or [])}
+    out = []
+    for nf in (s.result or {}).get("not_found") or []:
+        if not nf.get("name"):
+            continue
+        h = None
+        mid = nf.get("model_id")
+        if mid is not None:
+            rev = library.get_revision(session, int(mid), asked.get(int(mid)))
+            h = float(load_mesh(files.read(rev.glb_sha256), "model.glb", "mm").extents[2])
+        out.append((str(nf["name"]), h if h is not None else float("inf")))
+    return out
+
+
+def _table_xy(session: Session, files: FileStore, machine) -> tuple[float, float, float, float]:
+    """The table model's xy bounds in the table frame (mm)."""
+    from app.geometry.mesh import load_mesh
+    from app.services import library
+
+    rev = library.get_revision(session, machine.table_model_id, machine.table_revision)
+    b = load_mesh(files.read(rev.glb_sha256), "model.glb", "mm").bounds
+    return float(b[0, 0]), float(b[0, 1]), float(b[1, 0]), float(b[1, 1])
+
+
+def _frame_of(session: Session, machine, s, slot: str, off: dict) -> str:
+    """The header's frame sentence; with a live controller, Conflict unless a verified export of this
+    revision to ``slot`` exists and the controller holds it now (read back)."""
+    from sqlmodel import select
+
+    from app.machine import ControllerError, WorkOffset, make_controller
+    from app.services.errors import Unavailable
+    from app.store.models import Export
+
+    want = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"])
+    what = (f"{slot} = datum of {off.get('object')}, setup {s.id} revision {s.result_revision}: {want} "
+            "(machine coordinates)")
+    kind = (machine.controller or {}).get("kind")
+    if kind not in ("linuxcnc", "opcua"):
+        return what + "; not read back here: load this revision's offset into " + slot + " before running"
+    done = session.exec(select(Export).where(Export.setup_id == s.id, Export.slot == slot,
+                                            Export.result_revision == s.result_revision,
+                                            Export.status == "verified")).first()
+    if done is None:
+        raise Conflict(f"the program runs in {slot}, which must hold the datum of setup {s.id} revision "
+                       f"{s.result_revision}: export it to {slot} (verified) first", code="frame_not_exported")
+    controller = make_controller(machine.controller)
+    try:
+        now = controller.read_offset(slot)
+    except ControllerError as exc:
+        raise Unavailable(f"{exc}; the program's frame {slot} could not be read back") from None
+    finally:
+        controller.close()
+    if not want.agrees_with(now, controller.rounding_mm, controller.rounding_deg):
+        raise Conflict(f"{slot} on the controller is {now}, not the exported {want}; export again",
+                       code="frame_mismatch")
+    return what + f"; verified export {done.id}, read back now"
+
+
+def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *, dry_run: bool = True,
+                 wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0):
+    """The probing program with its touches and safe travel paths: ProbingProgram (travel in the
+    table frame, G-code in the datum frame of slot ``wcs``).
+
+    Gates (each refusal a 409/422 with a reason code): the parameters' closed sets; the export's
+    gates (confirmed revision, tilt, uncertainty PASS, offset inside the travel); every object asked
+    for is located, or its worst case does not block a touch (it always does today: its footprint is
+    the whole table); retract height inside the travel; every move inside the travel; the frame
+    (with a live controller: a verified export of this revision, read back now)."""
+    from app.geometry.transforms import inv
     from app.planning.obstacles import height_grid_from_meshes
     from app.planning.path import ProbeParams
-    from app.planning.probing import ProbingParams, choose_touch_points, probing_gcode
+    from app.planning.probing import ProbingParams, choose_touch_points, gcode_positions, probing_gcode
+    from app.planning.probing_safety import (
+        KnownObstacle,
+        assumed_unlocated,
+        blocking,
+        header_lines,
+        outside_travel,
+        raise_grid,
+        retract_height_mm,
+        table_z_max_mm,
+    )
+    from app.services.export import plausibility, require_confirmed
+    from app.services.machines import get_machine
 
     s = get_setup(session, setup_id)
-    if s.confirmed_revision is None or s.confirmed_revision != s.result_revision:
-        raise Conflict(f"setup {setup_id} is not confirmed in its current revision; confirm it before probing")
+    machine = get_machine(session, s.machine_id)
+    _, slot, clearance = check_program_params(machine, dialect=dialect, wcs=wcs, clearance_mm=clearance_mm)
+    require_confirmed(s, "probed")
+    _, off = plausibility(s, machine, settings, use="probing program")
     meshes, poses, names, sig, wp = setup_scene(session, files, setup_id)
     if wp is None:
-        raise Invalid(f"setup {setup_id} has no located workpiece to probe")
+        raise Invalid(f"setup {setup_id} has no located workpiece to probe", code="no_workpiece")
     i = names.index(wp["name"])
     datum = np.asarray(wp["T_obj_datum"]) if wp.get("T_obj_datum") else np.eye(4)
     params = ProbingParams()
-    travel = ProbeParams(working_distance_mm=0.0, clearance_mm=5.0, radius_mm=15.0, length_mm=80.0)
+    travel = ProbeParams(working_distance_mm=0.0, clearance_mm=clearance, radius_mm=PROBE_BODY_RADIUS_MM,
+                         length_mm=PROBE_BODY_LENGTH_MM)
+    T_machine_table = np.asarray(machine.T_machine_table, dtype=float)
+    T_prog_table = program_frame(machine, off)
+    tops = [float(transform_pts(p, m.vertices)[:, 2].max()) for m, p in zip(meshes, poses)]
+    located = []
+    for m, p, n, top in zip(meshes, poses, names, tops):
+        hull = np.asarray(_hull_xy(m, p))
+        located.append(KnownObstacle(n, "located", tuple(map(tuple, hull)), top + 3.0 * sig,
+                                     f"located, grown by 3 sigma = {3.0 * sig:.2f} mm"))
+    unlocated = _unlocated(session, files, s)
+    assumed = assumed_unlocated([(n, h) for n, h in unlocated if np.isfinite(h)],
+                                _table_xy(session, files, machine), max([0.0, *tops])) if unlocated else []
+    unknown = [n for n, h in unlocated if not np.isfinite(h)]
+    if unknown:
+        raise Invalid(f"objects {', '.join(unknown)} were asked for but not located and their size is not known; "
+                      "locate them before probing", code="obstacle_not_located")
     try:
         touches = choose_touch_points(meshes[i], poses[i], datum, params)
-        grid = height_grid_from_meshes(meshes, poses, uncertainty_mm=3.0 * sig)
-        top = max(float((m.bounds[1][2] + p[2, 3])) for m, p in zip(meshes, poses))
-        centre = poses[i][:3, 3]
-        program = probing_gcode(touches, grid, travel, (centre[0], centre[1], top + 50.0), params=params,
-                                dry_run=dry_run, wcs=wcs, title=f"setupcam probing, setup {setup_id}")
     except ValueError as exc:
-        raise Invalid(f"probing program: {exc}") from None
+        raise Invalid(f"probing program: {exc}", code="no_touch_points") from None
+    reach = [p for t in touches for p in (t.approach_tip, t.contact_tip)]
+    blocked = blocking(reach, assumed, PROBE_BODY_RADIUS_MM, clearance)
+    if blocked:
+        raise Invalid(f"probing program refused: {', '.join(blocked)} asked for but not located; it may stand "
+                      "anywhere on the table, where the touches go. Locate it (another image) or remove it from "
+                      "the setup's models", code="obstacle_not_located")
+    tallest = max(o.top_mm for o in located + assumed)
+    try:
+        retract = retract_height_mm(tallest, clearance, table_z_max_mm(T_machine_table, machine.travel_mm))
+    except ValueError as exc:
+        raise Invalid(f"probing program refused: {exc}", code="retract_above_travel") from None
+    frame = _frame_of(session, machine, s, slot, off)
+    header = header_lines(frame, located + assumed,
+                          "objects not asked for in the setup are not known to the planner" if not s.models else "")
+    try:
+        grid = raise_grid(height_grid_from_meshes(meshes, poses, uncertainty_mm=3.0 * sig), assumed)
+        centre = poses[i][:3, 3]
+        program = probing_gcode(touches, grid, travel, (centre[0], centre[1], retract), params=params,
+                                dry_run=dry_run, wcs=slot, T_prog_table=T_prog_table, header=header,
+                                retract_z_mm=retract, title=f"setupcam probing, setup {setup_id}")
+    except ValueError as exc:
+        raise Invalid(f"probing program: {exc}", code="not_plannable") from None
+    T_table_prog = inv(T_prog_table)
+    pts = np.array([p for _, p in gcode_positions(program.gcode) if not np.isnan(p).any()])
+    bad = outside_travel(transform_pts(T_table_prog, pts), T_machine_table, machine.travel_mm)
+    if bad:
+        k, p = bad[0]
+        raise Invalid(f"probing program refused: {len(bad)} moves end outside the machine's travel, first at machine "
+                      f"X{p[0]:.3f} Y{p[1]:.3f} Z{p[2]:.3f}", code="outside_travel")
     return program
+
+
+def program_frame(machine, off: dict) -> np.ndarray:
+    """``T_prog_table``: the frame the export writes into the slot, X, Y, Z, C of the datum in machine
+    coordinates (its small tilt dropped, as the export drops it), seen from the table frame."""
+    from app.geometry.transforms import inv
+    from app.machine import WorkOffset
+
+    T_machine_prog = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"]).to_pose()
+    return inv(T_machine_prog) @ np.asarray(machine.T_machine_table, dtype=float)
+
+
+def transform_pts(T, P):
+    from app.geometry.transforms import transform_points
+
+    return transform_points(np.asarray(T, dtype=float), np.asarray(P, dtype=float).reshape(-1, 3))
+
+
+def _hull_xy(mesh, T_table_obj):
+    from shapely.geometry import MultiPoint
+
+    V = transform_pts(T_table_obj, mesh.vertices)
+    return np.asarray(MultiPoint([tuple(p) for p in V[:, :2]]).convex_hull.exterior.coords)[:-1]
 
 
 def _touches(session: Session, files: FileStore, setup_id: int):
@@ -120,7 +324,13 @@ def apply_probe_results(session: Session, files: FileStore, settings, setup_id: 
         tips = parse_probe_results(text)
         touches, params, wp, datum = _touches(session, files, setup_id)
         T_table_datum = np.asarray(wp["T_table_obj"]) @ datum
-        ref = refine_offset(touches, tips, T_table_datum, ball_radius_mm=params.ball_radius_mm)
+        off = (s.result or {}).get("offset") or {}
+        if not off:
+            raise ValueError("the setup has no workpiece offset, so no program frame")
+        machine = get_machine(session, s.machine_id)
+        # the log holds tips in the program frame: the datum slot the program ran in
+        ref = refine_offset(touches, tips, T_table_datum, ball_radius_mm=params.ball_radius_mm,
+                            T_prog_table=program_frame(machine, off))
     except ValueError as exc:
         raise Invalid(f"probe results: {exc}") from None
     if ref.reason:

@@ -77,7 +77,12 @@ def test_probing_program_needs_confirmation_then_runs_on_linuxcnc(server, bracke
     if skip_reason():
         pytest.skip(skip_reason())
     sim = shared_sim()
-    sim.mdi("G10 L2 P1 X0 Y0 Z0 R0")  # G54 = machine zero: the program frame is the table frame
+    with server.client("operator") as c:
+        setup = c.get(f"/api/v1/setups/{sid}").json()
+        off = setup["result"]["offset"]
+        T_machine_table = np.asarray(c.get(f"/api/v1/machines/{setup['machine_id']}").json()["T_machine_table"])
+    # what a verified export writes into G54: the program runs in the datum frame
+    sim.mdi(f"G10 L2 P1 X{off['x_mm']:.6f} Y{off['y_mm']:.6f} Z{off['z_mm']:.6f} R{off['c_deg']:.6f}")
     sim.mdi("G54")
     sim.mdi("G53 G0 X-100 Y-100 Z0")
     sim.run_program(dry, name="probe_dry.ngc")
@@ -87,12 +92,35 @@ def test_probing_program_needs_confirmation_then_runs_on_linuxcnc(server, bracke
             break
         time.sleep(0.1)
     assert st["interp_idle"], "the dry run did not finish within 180 s"
-    # It ends above its start (the part's origin) at the top: an error would have stopped it earlier.
-    assert st["position"] == pytest.approx([T[0, 3], T[1, 3], 0.0], abs=1e-3), st
+    # It ends above its start (the part's origin) at the retract height: an error would have stopped it earlier.
+    from app.machine import WorkOffset
+    from app.planning.probing import gcode_positions
+
+    end_prog = gcode_positions(dry)[-1][1]
+    end_machine = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"]).to_pose() @ [*end_prog, 1.0]
+    assert st["position"][:3] == pytest.approx(end_machine[:3], abs=1e-3), st
+    assert (T_machine_table @ [T[0, 3], T[1, 3], 0, 1])[:2] == pytest.approx(end_machine[:2], abs=1e-3)
 
 
-def _simulated_probe_log(touches, T_true_table_datum, T_nominal_table_datum, ball_r: float) -> str:
-    """Tip positions where the ball touches the TRUE faces, moving along each nominal approach direction."""
+def _program_frame(c, sid) -> np.ndarray:
+    """T_prog_table: the program runs in the datum slot the export writes (X, Y, Z, C of the offset)."""
+    from app.geometry.transforms import inv
+    from app.machine import WorkOffset
+
+    setup = c.get(f"/api/v1/setups/{sid}").json()
+    off = setup["result"]["offset"]
+    machine = c.get(f"/api/v1/machines/{setup['machine_id']}").json()
+    T_machine_prog = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"]).to_pose()
+    return inv(T_machine_prog) @ np.asarray(machine["T_machine_table"])
+
+
+def _simulated_probe_log(touches, T_true_table_datum, T_nominal_table_datum, ball_r: float,
+                         T_prog_table=None) -> str:
+    """Tip positions (program frame) where the ball touches the TRUE faces, moving along each nominal
+    approach direction."""
+    from app.geometry.transforms import transform_points
+
+    T_prog_table = np.eye(4) if T_prog_table is None else T_prog_table
     rows = []
     for t in touches:
         n_d = np.asarray(t.face_normal_datum)
@@ -101,7 +129,7 @@ def _simulated_probe_log(touches, T_true_table_datum, T_nominal_table_datum, bal
         d = -np.asarray(t.normal)                                # moving towards the nominal face
         # n_true . (c - t_true) = o + r along c = a + s d
         s = (t.face_offset_mm + ball_r - n_true @ (a - T_true_table_datum[:3, 3])) / (n_true @ d)
-        tip = a + s * d - [0, 0, ball_r]
+        tip = transform_points(T_prog_table, a + s * d - [0, 0, ball_r])[0]
         rows.append(" ".join(f"{v:.6f}" for v in tip) + " 0 0 0 0 0 0")
     return "\n".join(rows)
 
@@ -119,7 +147,8 @@ def test_probe_results_refine_the_pose(server, bracket_setup):
         touches = choose_touch_points(mesh, T_nom, datum, ProbingParams())
         shift = pose_from_xyz_euler(0.30, -0.20, 0.05, 0, 0, 0.08)
         T_true_datum = shift @ T_nom @ datum
-        log = _simulated_probe_log(touches, T_true_datum, T_nom @ datum, ProbingParams().ball_radius_mm)
+        log = _simulated_probe_log(touches, T_true_datum, T_nom @ datum, ProbingParams().ball_radius_mm,
+                                   T_prog_table=_program_frame(c, sid))
         r = c.post(f"/api/v1/setups/{sid}/probe-results", content=log, headers={"Content-Type": "text/plain"})
         assert r.status_code == 200, r.text
         body = r.json()

@@ -1,0 +1,163 @@
+"""What a probing program may assume and where it may go (issue 18): obstacles with their source,
+objects asked for but not located, retract height, machine travel, safe comment text.
+
+Pure: numbers and shapes in, numbers out. Frames: the table frame (z up, mm) unless a name says
+otherwise; ``T_machine_table`` maps it into machine coordinates.
+
+An obstacle the program plans around is a :class:`KnownObstacle`: a footprint (polygon in table
+xy) and a top height, with its *source*:
+
+* ``located`` - a located mesh (the planner uses the mesh itself; the footprint is its hull);
+* ``assumed`` - an object that was asked for but not located: it may stand anywhere on the table
+  (the footprint is the whole table top) and reach as high as the highest located top plus its own
+  height as modelled (fixtures stand as modelled). Such an obstacle blocks every touch, so a
+  program is refused with its name unless it is located or drawn;
+* ``drawn``   - a no-go zone an operator drew (not offered over REST yet).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Sequence
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike
+from shapely.geometry import Point as ShapelyPoint
+from shapely.geometry import Polygon
+
+from app.geometry.transforms import transform_points
+from app.planning.obstacles import HeightGrid
+
+SOURCES = ("located", "assumed", "drawn")
+
+
+@dataclass(frozen=True)
+class KnownObstacle:
+    """One obstacle of the program's world: ``footprint_xy_mm`` a polygon in table xy, ``top_mm`` its
+    highest point (table z), ``source`` one of :data:`SOURCES`, ``note`` where the numbers come from."""
+
+    name: str
+    source: str
+    footprint_xy_mm: tuple[tuple[float, float], ...]
+    top_mm: float
+    note: str = ""
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ValueError(f"obstacle source must be one of {SOURCES}, got {self.source!r}")
+        if not np.isfinite(self.top_mm):
+            raise ValueError(f"obstacle {self.name}: top must be finite, got {self.top_mm}")
+
+    def polygon(self) -> Polygon:
+        return Polygon(self.footprint_xy_mm)
+
+
+def assumed_unlocated(
+    unlocated: Sequence[tuple[str, float]], table_xy_mm: tuple[float, float, float, float], support_top_mm: float
+) -> list[KnownObstacle]:
+    """The worst the library allows for objects asked for but not located: each ``(name, height_mm)``
+    (its height as modelled) may stand anywhere on the table top ``(xmin, ymin, xmax, ymax)`` and on
+    anything located there, so its top is ``support_top_mm + height_mm``."""
+    x0, y0, x1, y1 = (float(v) for v in table_xy_mm)
+    fp = ((x0, y0), (x1, y0), (x1, y1), (x0, y1))
+    return [KnownObstacle(n, "assumed", fp, float(support_top_mm) + float(h),
+                          f"asked for, not located: anywhere on the table, up to {support_top_mm:.1f} + {h:.1f} mm")
+            for n, h in unlocated]
+
+
+def raise_grid(grid: HeightGrid, obstacles: Sequence[KnownObstacle]) -> HeightGrid:
+    """A copy of ``grid`` with every cell a footprint touches raised to at least that obstacle's top
+    (the grid's own lateral inflation still applies to every query)."""
+    img = grid.heights_mm.copy()
+    c = grid.cell_mm
+    for ob in obstacles:
+        xy = np.asarray(ob.footprint_xy_mm, dtype=float)
+        px = (xy - np.asarray(grid.origin_xy_mm)) / c - 0.5
+        layer = np.zeros_like(img, dtype=np.uint8)
+        poly = np.round(px * 16.0).astype(np.int32)
+        cv2.fillPoly(layer, [poly], 1, lineType=cv2.LINE_8, shift=4)
+        cv2.polylines(layer, [poly], True, 1, lineType=cv2.LINE_8, shift=4)
+        layer = cv2.dilate(layer, np.ones((3, 3), np.uint8))
+        img = np.where(layer > 0, np.maximum(img, np.float32(ob.top_mm)), img).astype(np.float32)
+    return HeightGrid(grid.origin_xy_mm, c, img, grid.base_height_mm, grid.inflate_mm)
+
+
+def blocking(points_table: ArrayLike, obstacles: Sequence[KnownObstacle], radius_mm: float,
+             clearance_mm: float) -> list[str]:
+    """Names of the obstacles that a probe of ``radius_mm`` (seen from above) at any of the tip
+    positions (N, 3) would come within ``clearance_mm`` of (below their top, inside their footprint
+    grown by radius and clearance)."""
+    P = np.asarray(points_table, dtype=float).reshape(-1, 3)
+    out = []
+    for ob in obstacles:
+        g = ob.polygon().buffer(float(radius_mm) + float(clearance_mm))
+        if any(p[2] < ob.top_mm + clearance_mm and g.intersects(ShapelyPoint(p[0], p[1])) for p in P):
+            out.append(ob.name)
+    return out
+
+
+def retract_height_mm(tallest_top_mm: float, clearance_mm: float, z_max_mm: float, lift_mm: float = 45.0) -> float:
+    """Tip height (table z) to travel at between the program's ends: ``lift_mm`` above the tallest
+    obstacle, but never above the machine's travel ``z_max_mm`` (table z). ValueError when even
+    the tallest obstacle plus the clearance is above the travel."""
+    need = float(tallest_top_mm) + float(clearance_mm)
+    if need > z_max_mm:
+        raise ValueError(f"the tallest obstacle ({tallest_top_mm:.1f} mm) plus the clearance ({clearance_mm:.1f} mm) "
+                         f"is above the machine's travel (top at {z_max_mm:.1f} mm over the table)")
+    return float(min(need + float(lift_mm), z_max_mm))
+
+
+def table_z_max_mm(T_machine_table: ArrayLike, travel_mm: dict) -> float:
+    """Highest table z the controlled point can reach (machine travel z max, table not tilted)."""
+    T = np.asarray(T_machine_table, dtype=float)
+    return float(travel_mm["z"][1] - T[2, 3])
+
+
+def outside_travel(points_table: ArrayLike, T_machine_table: ArrayLike, travel_mm: dict,
+                   tol_mm: float = 1e-6) -> list[tuple[int, np.ndarray]]:
+    """(index, machine point) of every point outside the machine's travel box. The moves between
+    points are straight and the travel a box, so checking the ends checks every point of a move."""
+    P = transform_points(np.asarray(T_machine_table, dtype=float), np.asarray(points_table, dtype=float).reshape(-1, 3))
+    lo = np.array([travel_mm[a][0] for a in "xyz"], dtype=float) - tol_mm
+    hi = np.array([travel_mm[a][1] for a in "xyz"], dtype=float) + tol_mm
+    bad = np.flatnonzero(~np.all((P >= lo) & (P <= hi), axis=1))
+    return [(int(k), P[k]) for k in bad]
+
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9 _.,:;=+\-/#%*\[\]<>'!?@&]")
+
+
+def comment(text: str, max_len: int = 200) -> str:
+    """A G-code comment ``(text)`` that cannot end early or run code: parentheses become brackets,
+    every other character outside a small printable set (newlines, controls, non-ASCII) becomes _."""
+    s = str(text).replace("(", "[").replace(")", "]")
+    s = _UNSAFE.sub("_", s)[:max_len]
+    return f"({s})"
+
+
+def header_lines(frame: str, obstacles: Sequence[KnownObstacle], unknown_note: str = "") -> list[str]:
+    """The program's first comment lines: the frame, then one line per obstacle with its source."""
+    lines = [comment(f"frame: {frame}")]
+    by = {s: [o for o in obstacles if o.source == s] for s in SOURCES}
+    lines.append(comment("obstacles assumed: " + ", ".join(f"{s} {len(by[s])}" for s in SOURCES)))
+    for o in obstacles:
+        lines.append(comment(f"obstacle {o.source}: {o.name}, top {o.top_mm:.2f} mm{'; ' + o.note if o.note else ''}"))
+    if unknown_note:
+        lines.append(comment(unknown_note))
+    return lines
+
+
+__all__ = [
+    "SOURCES",
+    "KnownObstacle",
+    "assumed_unlocated",
+    "raise_grid",
+    "blocking",
+    "retract_height_mm",
+    "table_z_max_mm",
+    "outside_travel",
+    "comment",
+    "header_lines",
+]
