@@ -77,6 +77,10 @@ class TouchPoint:
 
 @dataclass(frozen=True)
 class ProbingParams:
+    """The touch probe and the touch cycle (mm, mm/min). The probe: a ball of ``ball_radius_mm`` on a
+    stylus (vertical cylinder of ``stylus_radius_mm`` from the ball centre up to ``stylus_length_mm``
+    above the tip), then the body (``body_radius_mm``, ``body_length_mm`` above the stylus)."""
+
     ball_radius_mm: float = 1.5
     stylus_length_mm: float = 30.0
     approach_mm: float = 5.0
@@ -84,6 +88,9 @@ class ProbingParams:
     depth_mm: float = 5.0
     edge_margin_mm: float = 2.0
     probe_feed_mm_min: float = 100.0
+    stylus_radius_mm: float = 1.5
+    body_radius_mm: float = 15.0
+    body_length_mm: float = 80.0
 
 
 @dataclass(frozen=True)

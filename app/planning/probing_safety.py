@@ -24,7 +24,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike
-from shapely.geometry import Point as ShapelyPoint
+from shapely.geometry import MultiPoint
 from shapely.geometry import Polygon
 
 from app.geometry.transforms import transform_points
@@ -84,20 +84,6 @@ def raise_grid(grid: HeightGrid, obstacles: Sequence[KnownObstacle]) -> HeightGr
     return HeightGrid(grid.origin_xy_mm, c, img, grid.base_height_mm, grid.inflate_mm)
 
 
-def blocking(points_table: ArrayLike, obstacles: Sequence[KnownObstacle], radius_mm: float,
-             clearance_mm: float) -> list[str]:
-    """Names of the obstacles that a probe of ``radius_mm`` (seen from above) at any of the tip
-    positions (N, 3) would come within ``clearance_mm`` of (below their top, inside their footprint
-    grown by radius and clearance)."""
-    P = np.asarray(points_table, dtype=float).reshape(-1, 3)
-    out = []
-    for ob in obstacles:
-        g = ob.polygon().buffer(float(radius_mm) + float(clearance_mm))
-        if any(p[2] < ob.top_mm + clearance_mm and g.intersects(ShapelyPoint(p[0], p[1])) for p in P):
-            out.append(ob.name)
-    return out
-
-
 def retract_height_mm(tallest_top_mm: float, clearance_mm: float, z_max_mm: float, lift_mm: float = 45.0) -> float:
     """Tip height (table z) to travel at between the program's ends: ``lift_mm`` above the tallest
     obstacle, but never above the machine's travel ``z_max_mm`` (table z). ValueError when even
@@ -149,12 +135,136 @@ def header_lines(frame: str, obstacles: Sequence[KnownObstacle], unknown_note: s
     return lines
 
 
+class ProbingRefused(ValueError):
+    """The program must not be issued: ``code`` (machine-readable) and the reason (the message)."""
+
+    def __init__(self, code: str, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+def touch_conflicts(touches, obstacles: Sequence[KnownObstacle], workpiece: str, params, clearance_mm: float,
+                    ) -> list[tuple[str, str]]:
+    """(touch, obstacle) pairs where a touch cannot be made without coming within ``clearance_mm`` of
+    an obstacle other than the probed face. Per touch the probe comes down vertically onto the
+    approach point, then moves to ``overtravel`` beyond the contact: the ball and stylus sweep the
+    xy segment approach -> probe end (grown by the stylus/ball radius) from the tip's height upward,
+    the body the same segment (grown by its radius) from ``stylus_length_mm`` above the tip upward.
+    Obstacles are 2.5-D (footprint, top). The workpiece itself only counts for the body."""
+    from shapely.geometry import LineString
+
+    out = []
+    for t in touches:
+        a, e = np.asarray(t.approach_tip, dtype=float), np.asarray(t.probe_end_tip, dtype=float)
+        seg = LineString([tuple(a[:2]), tuple(e[:2] + 1e-6)])
+        z_tip = min(a[2], e[2])
+        r_small = max(params.ball_radius_mm, params.stylus_radius_mm)
+        near_small = seg.buffer(r_small + clearance_mm)
+        near_body = seg.buffer(params.body_radius_mm + clearance_mm)
+        for ob in obstacles:
+            g = ob.polygon()
+            small = ob.name != workpiece and ob.top_mm > z_tip - clearance_mm and g.intersects(near_small)
+            body = ob.top_mm > z_tip + params.stylus_length_mm - clearance_mm and g.intersects(near_body)
+            if small or body:
+                out.append((t.name, ob.name))
+    return out
+
+
+def plan_probing_program(
+    meshes: Sequence,
+    poses: Sequence[ArrayLike],
+    names: Sequence[str],
+    workpiece_index: int,
+    T_obj_datum: ArrayLike,
+    *,
+    sigma_mm: float,
+    assumed: Sequence[KnownObstacle],
+    T_machine_table: ArrayLike,
+    travel_mm: dict,
+    T_prog_table: ArrayLike,
+    slot: str,
+    clearance_mm: float,
+    dry_run: bool,
+    frame_text: str,
+    title: str = "setupcam probing",
+    params=None,
+    method: str = "profile",
+    unknown_note: str = "",
+    speeds=None,
+):
+    """A probing program planned only around what is known, or :class:`ProbingRefused`.
+
+    meshes/poses/names : the located objects (obj frame meshes, T_table_obj), the workpiece at
+    ``workpiece_index``; each is grown by ``3 * sigma_mm`` (its 1-sigma position uncertainty).
+    assumed : obstacles not located (see :func:`assumed_unlocated`) or drawn.
+    T_prog_table : the program frame (the slot's frame); slot : its name (G54..G59.3).
+    Refusal codes: no_touch_points, obstacle_not_located (an assumed obstacle is where a touch goes),
+    touch_blocked (a located obstacle is), retract_above_travel, not_plannable, outside_travel.
+    Returns app.planning.probing.ProbingProgram; its G-code starts with :func:`header_lines`.
+    """
+    from app.planning.obstacles import height_grid_from_meshes
+    from app.planning.path import AxisSpeeds, ProbeParams
+    from app.planning.probing import ProbingParams, choose_touch_points, gcode_positions, probing_gcode
+
+    params = params or ProbingParams()
+    speeds = speeds or AxisSpeeds()
+    grow = 3.0 * float(sigma_mm)
+    located = []
+    tops = []
+    for m, p, n in zip(meshes, poses, names):
+        V = transform_points(np.asarray(p, dtype=float), m.vertices)
+        tops.append(float(V[:, 2].max()))
+        hull = MultiPoint([tuple(v) for v in V[:, :2]]).convex_hull.buffer(grow, join_style="mitre")
+        located.append(KnownObstacle(n, "located", tuple(map(tuple, np.asarray(hull.exterior.coords)[:-1])),
+                                     tops[-1] + grow, f"grown by 3 sigma = {grow:.2f} mm"))
+    try:
+        touches = choose_touch_points(meshes[workpiece_index], poses[workpiece_index], T_obj_datum, params)
+    except ValueError as exc:
+        raise ProbingRefused("no_touch_points", str(exc)) from None
+    wp = names[workpiece_index]
+    hidden = sorted({o for _, o in touch_conflicts(touches, assumed, wp, params, clearance_mm)})
+    if hidden:
+        raise ProbingRefused("obstacle_not_located", f"{', '.join(hidden)} asked for but not located; it may stand "
+                             "anywhere on the table, where the touches go. Locate it (another image) or remove it "
+                             "from the setup's models")
+    blocked = touch_conflicts(touches, located, wp, params, clearance_mm)
+    if blocked:
+        pairs = ", ".join(f"touch {t} by {o}" for t, o in blocked)
+        raise ProbingRefused("touch_blocked", f"a touch cannot be reached with {clearance_mm} mm clearance: {pairs}")
+    tallest = max(o.top_mm for o in [*located, *assumed])
+    try:
+        retract = retract_height_mm(tallest, clearance_mm, table_z_max_mm(T_machine_table, travel_mm))
+    except ValueError as exc:
+        raise ProbingRefused("retract_above_travel", str(exc)) from None
+    travel = ProbeParams(working_distance_mm=0.0, clearance_mm=clearance_mm, radius_mm=params.body_radius_mm,
+                         length_mm=params.stylus_length_mm + params.body_length_mm)
+    header = header_lines(frame_text, [*located, *assumed], unknown_note)
+    try:
+        grid = raise_grid(height_grid_from_meshes(meshes, poses, uncertainty_mm=grow), assumed)
+        centre = np.asarray(poses[workpiece_index], dtype=float)[:3, 3]
+        program = probing_gcode(touches, grid, travel, (centre[0], centre[1], retract), params=params, speeds=speeds,
+                                dry_run=dry_run, wcs=slot, T_prog_table=T_prog_table, header=header,
+                                retract_z_mm=retract, title=title, method=method)
+    except ValueError as exc:
+        raise ProbingRefused("not_plannable", str(exc)) from None
+    T_table_prog = np.linalg.inv(np.asarray(T_prog_table, dtype=float))
+    pts = np.array([q for _, q in gcode_positions(program.gcode) if not np.isnan(q).any()])
+    bad = outside_travel(transform_points(T_table_prog, pts), T_machine_table, travel_mm)
+    if bad:
+        k, q = bad[0]
+        raise ProbingRefused("outside_travel", f"{len(bad)} moves end outside the machine's travel, first at machine "
+                             f"X{q[0]:.3f} Y{q[1]:.3f} Z{q[2]:.3f}")
+    return program
+
+
 __all__ = [
+    "ProbingRefused",
+    "touch_conflicts",
+    "plan_probing_program",
     "SOURCES",
     "KnownObstacle",
     "assumed_unlocated",
     "raise_grid",
-    "blocking",
     "retract_height_mm",
     "table_z_max_mm",
     "outside_travel",

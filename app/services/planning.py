@@ -62,8 +62,6 @@ PROGRAM_PARAMS = ("dialect", "dry_run", "wcs", "clearance_mm")
 #: dialects the probing program is written in (the NC-file dialects of app.machine.nc_files otherwise)
 PROBE_DIALECTS = ("linuxcnc",)
 CLEARANCE_RANGE_MM = (1.0, 20.0)
-#: the probe the program is planned for: ball, stylus and body (the travel planner's cylinder covers them)
-PROBE_BODY_RADIUS_MM, PROBE_BODY_LENGTH_MM = 15.0, 80.0
 
 
 def controller_slots(controller: dict | None, dialect: str) -> tuple[str, ...]:
@@ -188,24 +186,12 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
     table frame, G-code in the datum frame of slot ``wcs``).
 
     Gates (each refusal a 409/422 with a reason code): the parameters' closed sets; the export's
-    gates (confirmed revision, tilt, uncertainty PASS, offset inside the travel); every object asked
-    for is located, or its worst case does not block a touch (it always does today: its footprint is
-    the whole table); retract height inside the travel; every move inside the travel; the frame
-    (with a live controller: a verified export of this revision, read back now)."""
-    from app.geometry.transforms import inv
-    from app.planning.obstacles import height_grid_from_meshes
-    from app.planning.path import ProbeParams
-    from app.planning.probing import ProbingParams, choose_touch_points, gcode_positions, probing_gcode
-    from app.planning.probing_safety import (
-        KnownObstacle,
-        assumed_unlocated,
-        blocking,
-        header_lines,
-        outside_travel,
-        raise_grid,
-        retract_height_mm,
-        table_z_max_mm,
-    )
+    gates (confirmed revision, tilt, uncertainty PASS, offset inside the travel); then the planner's
+    (app.planning.probing_safety.plan_probing_program: objects asked for but not located, touches
+    blocked, retract height and every move inside the travel); the frame (with a live controller:
+    a verified export of this revision, read back now)."""
+    from app.geometry.transforms import transform_points
+    from app.planning.probing_safety import ProbingRefused, assumed_unlocated, plan_probing_program
     from app.services.export import plausibility, require_confirmed
     from app.services.machines import get_machine
 
@@ -217,60 +203,24 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
     meshes, poses, names, sig, wp = setup_scene(session, files, setup_id)
     if wp is None:
         raise Invalid(f"setup {setup_id} has no located workpiece to probe", code="no_workpiece")
-    i = names.index(wp["name"])
-    datum = np.asarray(wp["T_obj_datum"]) if wp.get("T_obj_datum") else np.eye(4)
-    params = ProbingParams()
-    travel = ProbeParams(working_distance_mm=0.0, clearance_mm=clearance, radius_mm=PROBE_BODY_RADIUS_MM,
-                         length_mm=PROBE_BODY_LENGTH_MM)
-    T_machine_table = np.asarray(machine.T_machine_table, dtype=float)
-    T_prog_table = program_frame(machine, off)
-    tops = [float(transform_pts(p, m.vertices)[:, 2].max()) for m, p in zip(meshes, poses)]
-    located = []
-    for m, p, n, top in zip(meshes, poses, names, tops):
-        hull = np.asarray(_hull_xy(m, p))
-        located.append(KnownObstacle(n, "located", tuple(map(tuple, hull)), top + 3.0 * sig,
-                                     f"located, grown by 3 sigma = {3.0 * sig:.2f} mm"))
     unlocated = _unlocated(session, files, s)
-    assumed = assumed_unlocated([(n, h) for n, h in unlocated if np.isfinite(h)],
-                                _table_xy(session, files, machine), max([0.0, *tops])) if unlocated else []
     unknown = [n for n, h in unlocated if not np.isfinite(h)]
     if unknown:
         raise Invalid(f"objects {', '.join(unknown)} were asked for but not located and their size is not known; "
                       "locate them before probing", code="obstacle_not_located")
-    try:
-        touches = choose_touch_points(meshes[i], poses[i], datum, params)
-    except ValueError as exc:
-        raise Invalid(f"probing program: {exc}", code="no_touch_points") from None
-    reach = [p for t in touches for p in (t.approach_tip, t.contact_tip)]
-    blocked = blocking(reach, assumed, PROBE_BODY_RADIUS_MM, clearance)
-    if blocked:
-        raise Invalid(f"probing program refused: {', '.join(blocked)} asked for but not located; it may stand "
-                      "anywhere on the table, where the touches go. Locate it (another image) or remove it from "
-                      "the setup's models", code="obstacle_not_located")
-    tallest = max(o.top_mm for o in located + assumed)
-    try:
-        retract = retract_height_mm(tallest, clearance, table_z_max_mm(T_machine_table, machine.travel_mm))
-    except ValueError as exc:
-        raise Invalid(f"probing program refused: {exc}", code="retract_above_travel") from None
+    tops = [float(transform_points(p, m.vertices)[:, 2].max()) for m, p in zip(meshes, poses)]
+    assumed = assumed_unlocated(unlocated, _table_xy(session, files, machine), max([0.0, *tops])) if unlocated else []
     frame = _frame_of(session, machine, s, slot, off)
-    header = header_lines(frame, located + assumed,
-                          "objects not asked for in the setup are not known to the planner" if not s.models else "")
     try:
-        grid = raise_grid(height_grid_from_meshes(meshes, poses, uncertainty_mm=3.0 * sig), assumed)
-        centre = poses[i][:3, 3]
-        program = probing_gcode(touches, grid, travel, (centre[0], centre[1], retract), params=params,
-                                dry_run=dry_run, wcs=slot, T_prog_table=T_prog_table, header=header,
-                                retract_z_mm=retract, title=f"setupcam probing, setup {setup_id}")
-    except ValueError as exc:
-        raise Invalid(f"probing program: {exc}", code="not_plannable") from None
-    T_table_prog = inv(T_prog_table)
-    pts = np.array([p for _, p in gcode_positions(program.gcode) if not np.isnan(p).any()])
-    bad = outside_travel(transform_pts(T_table_prog, pts), T_machine_table, machine.travel_mm)
-    if bad:
-        k, p = bad[0]
-        raise Invalid(f"probing program refused: {len(bad)} moves end outside the machine's travel, first at machine "
-                      f"X{p[0]:.3f} Y{p[1]:.3f} Z{p[2]:.3f}", code="outside_travel")
-    return program
+        return plan_probing_program(
+            meshes, poses, names, names.index(wp["name"]),
+            np.asarray(wp["T_obj_datum"]) if wp.get("T_obj_datum") else np.eye(4),
+            sigma_mm=sig, assumed=assumed, T_machine_table=np.asarray(machine.T_machine_table, dtype=float),
+            travel_mm=machine.travel_mm, T_prog_table=program_frame(machine, off), slot=slot, clearance_mm=clearance,
+            dry_run=dry_run, frame_text=frame, title=f"setupcam probing, setup {setup_id}",
+            unknown_note="" if s.models else "objects not asked for in the setup are not known to the planner")
+    except ProbingRefused as exc:
+        raise Invalid(f"probing program refused: {exc}", code=exc.code) from None
 
 
 def program_frame(machine, off: dict) -> np.ndarray:
@@ -281,19 +231,6 @@ def program_frame(machine, off: dict) -> np.ndarray:
 
     T_machine_prog = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"]).to_pose()
     return inv(T_machine_prog) @ np.asarray(machine.T_machine_table, dtype=float)
-
-
-def transform_pts(T, P):
-    from app.geometry.transforms import transform_points
-
-    return transform_points(np.asarray(T, dtype=float), np.asarray(P, dtype=float).reshape(-1, 3))
-
-
-def _hull_xy(mesh, T_table_obj):
-    from shapely.geometry import MultiPoint
-
-    V = transform_pts(T_table_obj, mesh.vertices)
-    return np.asarray(MultiPoint([tuple(p) for p in V[:, :2]]).convex_hull.exterior.coords)[:-1]
 
 
 def _touches(session: Session, files: FileStore, setup_id: int):
