@@ -88,7 +88,7 @@ class ProbingParams:
     depth_mm: float = 5.0
     edge_margin_mm: float = 2.0
     probe_feed_mm_min: float = 100.0
-    stylus_radius_mm: float = 1.5
+    stylus_radius_mm: float = 1.0
     body_radius_mm: float = 15.0
     body_length_mm: float = 80.0
 

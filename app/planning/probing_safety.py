@@ -18,7 +18,7 @@ xy) and a top height, with its *source*:
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import cv2
@@ -143,22 +143,29 @@ class ProbingRefused(ValueError):
         self.code = code
 
 
-def touch_conflicts(touches, obstacles: Sequence[KnownObstacle], workpiece: str, params, clearance_mm: float,
-                    ) -> list[tuple[str, str]]:
-    """(touch, obstacle) pairs where a touch cannot be made without coming within ``clearance_mm`` of
-    an obstacle other than the probed face. Per touch the probe comes down vertically onto the
-    approach point, then moves to ``overtravel`` beyond the contact: the ball and stylus sweep the
-    xy segment approach -> probe end (grown by the stylus/ball radius) from the tip's height upward,
-    the body the same segment (grown by its radius) from ``stylus_length_mm`` above the tip upward.
-    Obstacles are 2.5-D (footprint, top). The workpiece itself only counts for the body."""
-    from shapely.geometry import LineString
-
+def _touch_segments(touches):
+    """Per touch: (name, approach tip, probe end tip, lowest tip z) in the table frame."""
     out = []
     for t in touches:
         a, e = np.asarray(t.approach_tip, dtype=float), np.asarray(t.probe_end_tip, dtype=float)
+        out.append((t.name, a, e, float(min(a[2], e[2]))))
+    return out
+
+
+def touch_conflicts(touches, obstacles: Sequence[KnownObstacle], workpiece: str, params, clearance_mm: float,
+                    ) -> list[tuple[str, str]]:
+    """(touch, obstacle) pairs where a touch cannot be made without coming within ``clearance_mm`` of
+    an obstacle given by footprint and top (assumed or drawn ones). Per touch the probe comes down
+    vertically onto the approach point, then moves to ``overtravel`` beyond the contact: the ball and
+    stylus sweep the xy segment approach -> probe end (grown by their radius) from the tip's height
+    upward, the body the same segment (grown by its radius) from ``stylus_length_mm`` above the tip
+    upward. The workpiece itself only counts for the body."""
+    from shapely.geometry import LineString
+
+    out = []
+    r_small = max(params.ball_radius_mm, params.stylus_radius_mm)
+    for name, a, e, z_tip in _touch_segments(touches):
         seg = LineString([tuple(a[:2]), tuple(e[:2] + 1e-6)])
-        z_tip = min(a[2], e[2])
-        r_small = max(params.ball_radius_mm, params.stylus_radius_mm)
         near_small = seg.buffer(r_small + clearance_mm)
         near_body = seg.buffer(params.body_radius_mm + clearance_mm)
         for ob in obstacles:
@@ -166,7 +173,31 @@ def touch_conflicts(touches, obstacles: Sequence[KnownObstacle], workpiece: str,
             small = ob.name != workpiece and ob.top_mm > z_tip - clearance_mm and g.intersects(near_small)
             body = ob.top_mm > z_tip + params.stylus_length_mm - clearance_mm and g.intersects(near_body)
             if small or body:
-                out.append((t.name, ob.name))
+                out.append((name, ob.name))
+    return out
+
+
+def touch_conflicts_meshes(touches, meshes, poses, names, workpiece_index: int, params, clearance_mm: float,
+                           grow_mm: float, cell_mm: float = 1.0) -> list[tuple[str, str]]:
+    """Like :func:`touch_conflicts` for located meshes, with each mesh's own height raster (grown by
+    ``grow_mm``) instead of a footprint hull, so that a touch between a vise's jaws or beside a strap
+    clamp is judged by what really stands there."""
+    from app.planning.obstacles import height_grid_from_meshes
+
+    segs = _touch_segments(touches)
+    r_small = max(params.ball_radius_mm, params.stylus_radius_mm)
+    out = []
+    for k, (m, p, n) in enumerate(zip(meshes, poses, names)):
+        grid = height_grid_from_meshes([m], [p], cell_mm=cell_mm, uncertainty_mm=grow_mm, base_height_mm=-1e3)
+        for name, a, e, z_tip in segs:
+            steps = int(np.ceil(np.linalg.norm(e[:2] - a[:2]) / cell_mm)) + 1
+            body = grid.profile_mm(0, a[:2], e[:2], params.body_radius_mm + clearance_mm, steps).max()
+            hit = body > z_tip + params.stylus_length_mm - clearance_mm
+            if k != workpiece_index:
+                small = grid.profile_mm(0, a[:2], e[:2], r_small + clearance_mm, steps).max()
+                hit = hit or small > z_tip - clearance_mm
+            if hit:
+                out.append((name, n))
     return out
 
 
@@ -217,6 +248,8 @@ def plan_probing_program(
         hull = MultiPoint([tuple(v) for v in V[:, :2]]).convex_hull.buffer(grow, join_style="mitre")
         located.append(KnownObstacle(n, "located", tuple(map(tuple, np.asarray(hull.exterior.coords)[:-1])),
                                      tops[-1] + grow, f"grown by 3 sigma = {grow:.2f} mm"))
+    # the approach starts the clearance away from the face wherever within its uncertainty the face is
+    params = replace(params, approach_mm=max(params.approach_mm, clearance_mm + grow))
     try:
         touches = choose_touch_points(meshes[workpiece_index], poses[workpiece_index], T_obj_datum, params)
     except ValueError as exc:
@@ -227,7 +260,7 @@ def plan_probing_program(
         raise ProbingRefused("obstacle_not_located", f"{', '.join(hidden)} asked for but not located; it may stand "
                              "anywhere on the table, where the touches go. Locate it (another image) or remove it "
                              "from the setup's models")
-    blocked = touch_conflicts(touches, located, wp, params, clearance_mm)
+    blocked = touch_conflicts_meshes(touches, meshes, poses, names, workpiece_index, params, clearance_mm, grow)
     if blocked:
         pairs = ", ".join(f"touch {t} by {o}" for t, o in blocked)
         raise ProbingRefused("touch_blocked", f"a touch cannot be reached with {clearance_mm} mm clearance: {pairs}")
@@ -260,6 +293,7 @@ def plan_probing_program(
 __all__ = [
     "ProbingRefused",
     "touch_conflicts",
+    "touch_conflicts_meshes",
     "plan_probing_program",
     "SOURCES",
     "KnownObstacle",
