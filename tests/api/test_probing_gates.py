@@ -205,3 +205,25 @@ def test_objects_asked_for_but_not_located_refuse_with_their_names(server, good_
         assert r.status_code == 422, r.text
         body = r.json()
         assert body["code"] == "obstacle_not_located" and clamp["name"] in body["detail"], body
+
+
+@pytest.mark.integration
+def test_frame_must_be_exported_and_held_by_the_controller(server, lcnc):
+    """With a live controller the program is offered only for a slot holding this revision's datum:
+    exported and verified, and read back now."""
+    with server.client() as c:
+        m = make_machine(c, lcnc.settings)
+    sid = _confirmed(server, m["id"], place_on_table(library_mesh("bracket_140"), 300.0, 150.0, 10.0))
+    r = _get(server, sid, {"wcs": "G56"})
+    assert r.status_code == 409 and r.json()["code"] == "frame_not_exported", r.text
+    with server.client("operator") as c:
+        e = c.post(f"/api/v1/setups/{sid}/export", json={"slot": "G56", "acknowledge_change": True})
+        assert e.status_code == 200 and e.json()["status"] == "verified", e.text
+    r = _get(server, sid, {"wcs": "G56", "dry_run": "true"})
+    assert r.status_code == 200, r.text
+    head = r.text.splitlines()[1]
+    assert head.startswith("(frame: G56 = datum of block") and f"verified export {e.json()['id']}, read back now" in head
+    assert "G21 G90 G17 G94 G40 G56" in r.text.splitlines()
+    lcnc.mdi("G10 L2 P3 X0 Y0 Z0 R0")  # someone changes G56 on the machine afterwards
+    r = _get(server, sid, {"wcs": "G56"})
+    assert r.status_code == 409 and r.json()["code"] == "frame_mismatch", r.text
