@@ -43,6 +43,7 @@ import trimesh
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 from shapely.geometry import LineString, Polygon
+from shapely.geometry import Point as ShapelyPoint
 from shapely.ops import polylabel, unary_union
 
 from app.geometry.transforms import check_pose, inv, tilt_deg, transform_points
@@ -143,11 +144,24 @@ def _first_hit_ok(mesh_datum, point, normal, tol_mm=0.05) -> bool:
     return bool(np.linalg.norm(first - point) < tol_mm)
 
 
+@dataclass(frozen=True)
+class TouchPlacement:
+    """Where on the datum faces the touches go: ``rot_fracs`` the two touches on the longer side face
+    and ``single_frac`` the one on the other (fractions along the usable line), ``top_frac`` the top
+    touch as fractions (u, v) of the usable top region's xy bounds (None: its pole of inaccessibility).
+    The default is the module doc's choice; a planner may try others to keep clear of clamps."""
+
+    rot_fracs: tuple[float, float] = (0.15, 0.85)
+    single_frac: float = 0.5
+    top_frac: tuple[float, float] | None = None
+
+
 def choose_touch_points(
-    mesh: trimesh.Trimesh, T_table_obj: ArrayLike, T_obj_datum: ArrayLike, params: ProbingParams = ProbingParams()
+    mesh: trimesh.Trimesh, T_table_obj: ArrayLike, T_obj_datum: ArrayLike, params: ProbingParams = ProbingParams(),
+    placement: TouchPlacement = TouchPlacement(),
 ) -> tuple[TouchPoint, ...]:
     """Touch points on the datum faces (see the module doc); raises ValueError with a reason when a
-    face is missing or too small for the ball."""
+    face is missing or too small for the ball (or the top point of ``placement`` is off the face)."""
     T_table_datum = check_pose(T_table_obj, "T_table_obj") @ check_pose(T_obj_datum, "T_obj_datum")
     T_datum_obj = inv(check_pose(T_obj_datum, "T_obj_datum"))
     md = trimesh.Trimesh(transform_points(T_datum_obj, mesh.vertices), mesh.faces, process=False)
@@ -172,7 +186,7 @@ def choose_touch_points(
     rot = max(sides, key=lambda s: s[4].length)
     touches_d: list[tuple[str, np.ndarray, float, np.ndarray]] = []  # (name, n_datum, offset, point_datum)
     for a, name, sign, off, seg, z in sides:
-        fracs = (0.15, 0.85) if (a == rot[0]) else (0.5,)
+        fracs = tuple(placement.rot_fracs) if (a == rot[0]) else (placement.single_frac,)
         for k, f in enumerate(fracs):
             u = seg.interpolate(f, normalized=True).x
             p = np.zeros(3)
@@ -186,8 +200,15 @@ def choose_touch_points(
         raise ValueError(f"top datum face is too small for a {r:.1f} mm ball")
     if region.geom_type == "MultiPolygon":
         region = max(region.geoms, key=lambda g: g.area)
-    c = polylabel(region, tolerance=0.5)
-    touches_d.append(("z", E[2], off, np.array([c.x, c.y, off])))
+    if placement.top_frac is None:
+        c = polylabel(region, tolerance=0.5)
+        cx, cy = c.x, c.y
+    else:
+        x0, y0, x1, y1 = region.bounds
+        cx, cy = x0 + placement.top_frac[0] * (x1 - x0), y0 + placement.top_frac[1] * (y1 - y0)
+        if not region.contains(ShapelyPoint(cx, cy)):
+            raise ValueError(f"top touch at ({cx:.2f}, {cy:.2f}) (datum frame) is off the usable top face")
+    touches_d.append(("z", E[2], off, np.array([cx, cy, off])))
 
     out = []
     R = T_table_datum[:3, :3]
@@ -498,6 +519,7 @@ __all__ = [
     "ProbingParams",
     "ProbingProgram",
     "TouchPoint",
+    "TouchPlacement",
     "OffsetRefinement",
     "choose_touch_points",
     "probing_gcode",

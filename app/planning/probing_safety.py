@@ -177,20 +177,26 @@ def touch_conflicts(touches, obstacles: Sequence[KnownObstacle], workpiece: str,
     return out
 
 
-def touch_conflicts_meshes(touches, meshes, poses, names, workpiece_index: int, params, clearance_mm: float,
-                           grow_mm: float, cell_mm: float = 1.0) -> list[tuple[str, str]]:
-    """Like :func:`touch_conflicts` for located meshes, with each mesh's own height raster (grown by
-    ``grow_mm``) instead of a footprint hull, so that a touch between a vise's jaws or beside a strap
-    clamp is judged by what really stands there."""
+def object_grids(meshes, poses, grow_mm: float, cell_mm: float = 1.0) -> list:
+    """One height raster per located mesh (grown by ``grow_mm``; nothing else in it), for
+    :func:`touch_conflicts_grids`."""
     from app.planning.obstacles import height_grid_from_meshes
 
+    return [height_grid_from_meshes([m], [p], cell_mm=cell_mm, uncertainty_mm=grow_mm, base_height_mm=-1e3)
+            for m, p in zip(meshes, poses)]
+
+
+def touch_conflicts_grids(touches, grids, names, workpiece_index: int, params, clearance_mm: float,
+                          ) -> list[tuple[str, str]]:
+    """Like :func:`touch_conflicts` for located meshes, with each mesh's own height raster
+    (:func:`object_grids`) instead of a footprint hull, so that a touch between a vise's jaws or
+    beside a strap clamp is judged by what really stands there."""
     segs = _touch_segments(touches)
     r_small = max(params.ball_radius_mm, params.stylus_radius_mm)
     out = []
-    for k, (m, p, n) in enumerate(zip(meshes, poses, names)):
-        grid = height_grid_from_meshes([m], [p], cell_mm=cell_mm, uncertainty_mm=grow_mm, base_height_mm=-1e3)
+    for k, (grid, n) in enumerate(zip(grids, names)):
         for name, a, e, z_tip in segs:
-            steps = int(np.ceil(np.linalg.norm(e[:2] - a[:2]) / cell_mm)) + 1
+            steps = int(np.ceil(np.linalg.norm(e[:2] - a[:2]) / grid.cell_mm)) + 1
             body = grid.profile_mm(0, a[:2], e[:2], params.body_radius_mm + clearance_mm, steps).max()
             hit = body > z_tip + params.stylus_length_mm - clearance_mm
             if k != workpiece_index:
@@ -199,6 +205,49 @@ def touch_conflicts_meshes(touches, meshes, poses, names, workpiece_index: int, 
             if hit:
                 out.append((name, n))
     return out
+
+
+def _group(name: str) -> str:
+    return "top" if name == "z" else ("rot" if name[-1].isdigit() else "single")
+
+
+def _alternatives(group: str) -> list:
+    """Touch placements to try, nearest the default first."""
+    f = np.round(np.arange(0.05, 0.951, 0.05), 2)
+    if group == "rot":
+        pairs = [(float(a), float(b)) for a in f for b in f if b - a >= 0.4 - 1e-9]
+        return sorted(pairs, key=lambda p: (abs(p[0] - 0.15) + abs(p[1] - 0.85), p))
+    if group == "single":
+        return sorted((float(v) for v in f), key=lambda v: (abs(v - 0.5), v))
+    uv = [(float(a), float(b)) for a in f[1::2] for b in f[1::2]]
+    return sorted(uv, key=lambda p: (np.hypot(p[0] - 0.5, p[1] - 0.5), p))
+
+
+def place_touches(choose, conflicts, max_tries: int = 200):
+    """Touches whose placement keeps clear of obstacles: the default, or, per group of touches
+    (the two on the rotation face, the single side touch, the top touch) that conflicts, the first
+    alternative placement (nearest the default) whose touches of that group are clear. ``choose``:
+    placement -> touches (may raise ValueError); ``conflicts``: touches -> [(touch, obstacle)].
+    Returns (touches, remaining conflicts)."""
+    from app.planning.probing import TouchPlacement
+
+    placement = TouchPlacement()
+    touches = choose(placement)
+    found = conflicts(touches)
+    for group, field_name in (("rot", "rot_fracs"), ("single", "single_frac"), ("top", "top_frac")):
+        if not any(_group(t) == group for t, _ in found):
+            continue
+        for alt in _alternatives(group)[:max_tries]:
+            trial = replace(placement, **{field_name: alt})
+            try:
+                cand = choose(trial)
+            except ValueError:
+                continue
+            if not conflicts([t for t in cand if _group(t.name) == group]):
+                placement = trial
+                break
+    touches = choose(placement)
+    return touches, conflicts(touches)
 
 
 def plan_probing_program(
@@ -235,7 +284,13 @@ def plan_probing_program(
     """
     from app.planning.obstacles import height_grid_from_meshes
     from app.planning.path import AxisSpeeds, ProbeParams
-    from app.planning.probing import ProbingParams, choose_touch_points, gcode_positions, probing_gcode
+    from app.planning.probing import (
+        ProbingParams,
+        TouchPlacement,
+        choose_touch_points,
+        gcode_positions,
+        probing_gcode,
+    )
 
     params = params or ProbingParams()
     speeds = speeds or AxisSpeeds()
@@ -250,8 +305,12 @@ def plan_probing_program(
                                      tops[-1] + grow, f"grown by 3 sigma = {grow:.2f} mm"))
     # the approach starts the clearance away from the face wherever within its uncertainty the face is
     params = replace(params, approach_mm=max(params.approach_mm, clearance_mm + grow))
+
+    def choose(placement):
+        return choose_touch_points(meshes[workpiece_index], poses[workpiece_index], T_obj_datum, params, placement)
+
     try:
-        touches = choose_touch_points(meshes[workpiece_index], poses[workpiece_index], T_obj_datum, params)
+        touches = choose(TouchPlacement())
     except ValueError as exc:
         raise ProbingRefused("no_touch_points", str(exc)) from None
     wp = names[workpiece_index]
@@ -260,7 +319,9 @@ def plan_probing_program(
         raise ProbingRefused("obstacle_not_located", f"{', '.join(hidden)} asked for but not located; it may stand "
                              "anywhere on the table, where the touches go. Locate it (another image) or remove it "
                              "from the setup's models")
-    blocked = touch_conflicts_meshes(touches, meshes, poses, names, workpiece_index, params, clearance_mm, grow)
+    grids = object_grids(meshes, poses, grow)
+    touches, blocked = place_touches(
+        choose, lambda ts: touch_conflicts_grids(ts, grids, names, workpiece_index, params, clearance_mm))
     if blocked:
         pairs = ", ".join(f"touch {t} by {o}" for t, o in blocked)
         raise ProbingRefused("touch_blocked", f"a touch cannot be reached with {clearance_mm} mm clearance: {pairs}")
@@ -293,7 +354,9 @@ def plan_probing_program(
 __all__ = [
     "ProbingRefused",
     "touch_conflicts",
-    "touch_conflicts_meshes",
+    "object_grids",
+    "touch_conflicts_grids",
+    "place_touches",
     "plan_probing_program",
     "SOURCES",
     "KnownObstacle",

@@ -113,3 +113,35 @@ def test_checker_on_hand_made_moves():
     assert not check_program("G0 X22 Y0 Z-7\nG1 Y50 F1000\n", [block], probe=probe).ok
     with pytest.raises(ValueError, match="G53"):
         parse_moves("G53 G0 Z0\n")
+
+
+def test_a_touch_beside_a_clamp_moves_along_the_face():
+    """A strap clamp right where the default touch y1 (15 % along the long face) would go: the
+    planner slides that touch along the face instead of refusing, and the program is clean."""
+    import trimesh
+
+    from app.geometry.transforms import make_pose
+    from app.planning.program_check import VCylinder
+    from tests.support.probing_scenes import ProbingScene
+
+    L, W, H = 200.0, 80.0, 40.0
+    part = Box((300.0, 200.0), (L / 2, W / 2), 0.0, H)
+    x_default = 200.0 + 3.5 + 0.15 * (L - 7.0)  # 15 % along the usable line of the front (y) face
+    strap = Box((x_default, 200.0 - W / 2 + 5.0), (12.5, 50.0), H, H + 12)
+    riser = Box((x_default, 200.0 - W / 2 - 40.0), (12.5, 12.5), 0.0, H)
+    stud = VCylinder((x_default, 200.0 - W / 2 - 5.0), 6.0, 0.0, H + 32)
+    truth = (TrueObstacle("table", "support", (Box((400.0, 200.0), (400.0, 200.0), -60.0, 0.0),)),
+             TrueObstacle("workpiece", "workpiece", (part,)),
+             TrueObstacle("strap_clamp", "fixture", (strap, riser, stud)))
+    from tests.support.probing_scenes import _mesh
+
+    meshes = (_mesh((part,)), _mesh((strap, riser, stud)))
+    sc = ProbingScene(truth, meshes, (np.eye(4), np.eye(4)), ("workpiece", "strap_clamp"), 0,
+                      make_pose(t=(200.0, 160.0, H)), 0.1, (), "table")
+    assert isinstance(meshes[0], trimesh.Trimesh)
+    prog = plan(sc)
+    y_touches = [t for t in prog.touches if t.name.startswith("y")]
+    assert len(y_touches) == 2 and min(abs(t.contact[0] - x_default) for t in y_touches) > 20.0
+    rep = check_program(prog.gcode, sc.truth, T_table_prog=inv(sc.T_prog_table()), clearance_mm=CLEARANCE,
+                        nominal_contacts=[t.contact_tip for t in prog.touches])
+    assert rep.ok and len(rep.touches) == 4, rep.violations[:3]
