@@ -18,10 +18,12 @@ middle, both ``depth_mm`` below the face's upper edge; the top face one touch at
 inaccessibility. Every touch is checked by casting a ray into the part: the first surface met must
 be the datum face at the touch point.
 
-Program (``probing_gcode``): ``G21 G90 G17 G94``, the active work offset, travel with ``G1`` at the
-fastest feed the axes allow (the linking path from the profile planner, which is collision-free for
-the given obstacles), ``G38.2`` towards each face (from ``approach_mm`` outside, to ``overtravel_mm``
-inside), retract along the normal, ``M2``. No tool change, no offsets written. Results are logged
+Program (``probing_gcode``): header comment lines (frame, obstacles; see probing_safety), the title,
+``G21 G90 G17 G94 G40`` and the work offset slot (from a closed set), ``G0 Z`` to the retract height,
+travel with ``G1`` at the fastest feed the axes allow (the linking path from the profile planner,
+which is collision-free for the given obstacles), ``G38.2`` towards each face (from ``approach_mm``
+outside, to ``overtravel_mm`` inside), retract along the normal, ``G0 Z`` retract, ``M2``. No tool
+change, no offsets written, no machine-coordinate (G53) moves. Results are logged
 with ``(PROBEOPEN file)`` / ``(PROBECLOSE)``: LinuxCNC writes one line per successful probe with the
 program-frame X Y Z A B C U V W (older versions X Y Z). The dry-run variant replaces every
 ``G38.2`` by a ``G1`` to the nominal contact and opens no log.

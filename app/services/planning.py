@@ -181,7 +181,7 @@ def _frame_of(session: Session, machine, s, slot: str, off: dict) -> str:
 
 
 def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *, dry_run: bool = True,
-                 wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0):
+                 wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0, check_frame: bool = True):
     """The probing program with its touches and safe travel paths: ProbingProgram (travel in the
     table frame, G-code in the datum frame of slot ``wcs``).
 
@@ -189,12 +189,17 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
     gates (confirmed revision, tilt, uncertainty PASS, offset inside the travel); then the planner's
     (app.planning.probing_safety.plan_probing_program: objects asked for but not located, touches
     blocked, retract height and every move inside the travel); the frame (with a live controller:
-    a verified export of this revision, read back now)."""
+    a verified export of this revision, read back now; ``check_frame=False`` skips that for drawing the
+    plan, and ``settings=None`` takes the process's settings)."""
     from app.geometry.transforms import transform_points
     from app.planning.probing_safety import ProbingRefused, assumed_unlocated, plan_probing_program
     from app.services.export import plausibility, require_confirmed
     from app.services.machines import get_machine
 
+    if settings is None:
+        from app.config import get_settings
+
+        settings = get_settings()
     s = get_setup(session, setup_id)
     machine = get_machine(session, s.machine_id)
     _, slot, clearance = check_program_params(machine, dialect=dialect, wcs=wcs, clearance_mm=clearance_mm)
@@ -210,7 +215,8 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
                       "locate them before probing", code="obstacle_not_located")
     tops = [float(transform_points(p, m.vertices)[:, 2].max()) for m, p in zip(meshes, poses)]
     assumed = assumed_unlocated(unlocated, _table_xy(session, files, machine), max([0.0, *tops])) if unlocated else []
-    frame = _frame_of(session, machine, s, slot, off)
+    frame = (_frame_of(session, machine, s, slot, off) if check_frame
+             else f"{slot} = datum of {off.get('object')} (drawing only, not read back)")
     try:
         return plan_probing_program(
             meshes, poses, names, names.index(wp["name"]),

@@ -227,3 +227,20 @@ def test_frame_must_be_exported_and_held_by_the_controller(server, lcnc):
     lcnc.mdi("G10 L2 P3 X0 Y0 Z0 R0")  # someone changes G56 on the machine afterwards
     r = _get(server, sid, {"wcs": "G56"})
     assert r.status_code == 409 and r.json()["code"] == "frame_mismatch", r.text
+
+
+def test_the_3d_view_draws_the_gated_plan(server, good_setup, machine):
+    """The viewer draws the same plan (table frame) for a confirmed setup, and says why not otherwise."""
+    from app.viewer.data import probing_paths
+
+    sid, T = good_setup
+    with session_scope(server.app.state.engine) as session:
+        paths, why = probing_paths(session, server.app.state.files, session.get(Setup, sid), None, server.settings)
+    assert why == "" and [p.name for p in paths if p.name.startswith("touch_")] == ["touch_x", "touch_y1", "touch_y2",
+                                                                                      "touch_z"]
+    top = float(transform_points(T, library_mesh("bracket_140").vertices)[:, 2].max())
+    assert max(float(p.points_mm[:, 2].max()) for p in paths) >= top + 5.0  # table frame: over the part
+    bad = _confirmed(server, machine["id"], place_on_table(library_mesh("bracket_140"), 300.0, 150.0, 10.0), sigma_mm=3.0)
+    with session_scope(server.app.state.engine) as session:
+        paths, why = probing_paths(session, server.app.state.files, session.get(Setup, bad), None, server.settings)
+    assert paths == () and "uncertainty too large" in why
