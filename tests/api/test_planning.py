@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -86,12 +84,7 @@ def test_probing_program_needs_confirmation_then_runs_on_linuxcnc(server, bracke
     sim.mdi("G54")
     sim.mdi("G53 G0 X-100 Y-100 Z0")
     sim.run_program(dry, name="probe_dry.ngc")
-    for _ in range(1800):
-        st = sim.status()
-        if st["interp_idle"]:
-            break
-        time.sleep(0.1)
-    assert st["interp_idle"], "the dry run did not finish within 180 s"
+    st = sim.wait_idle(180.0)
     # It ends above its start (the part's origin) at the retract height: an error would have stopped it earlier.
     from app.machine import WorkOffset
     from app.planning.probing import gcode_positions

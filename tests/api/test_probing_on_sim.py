@@ -7,7 +7,6 @@ against the true scene, and the probe log sent back refines the pose to the trut
 from __future__ import annotations
 
 import json
-import time
 
 import numpy as np
 import pytest
@@ -111,12 +110,7 @@ def test_real_program_on_the_sim_with_a_simulated_probe(server, lcnc):
         lcnc.mdi("G53 G0 Z0")
         lcnc.mdi("G53 G0 X-100 Y-100")
         lcnc.run_program(program, name="probe_real.ngc")
-        for _ in range(3000):
-            st = lcnc.status()
-            if st["interp_idle"]:
-                break
-            time.sleep(0.1)
-        assert st["interp_idle"], "the probing program did not finish within 300 s"
+        lcnc.wait_idle(300.0)
     finally:
         lcnc.set_probe_part([])
     assert log_file.exists(), "PROBEOPEN wrote no log"

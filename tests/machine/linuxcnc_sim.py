@@ -322,6 +322,17 @@ class LinuxCncSim:
         """Run one MDI line through the linuxcnc module (waits until in position); returns status."""
         return self._child("mdi", code, timeout_s=40)
 
+    def wait_idle(self, timeout_s: float = 180.0) -> dict:
+        """Status once the interpreter is idle (a program ended or stopped); SimError after the timeout."""
+        end = time.monotonic() + timeout_s
+        while True:
+            st = self.status()
+            if st["interp_idle"]:
+                return st
+            if time.monotonic() > end:
+                raise SimError(f"the program did not finish within {timeout_s:.0f} s")
+            time.sleep(0.1)
+
     def run_program(self, text: str, name: str = "program.ngc") -> dict:
         """Write ``text`` into the config folder, start it in auto mode, return once it moves."""
         path = self.workdir / name
