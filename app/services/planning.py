@@ -251,10 +251,25 @@ def _touches(session: Session, files: FileStore, setup_id: int):
     return choose_touch_points(meshes[i], poses[i], datum, params), params, wp, datum
 
 
+#: what a touch may differ from the truth besides the located error (probe repeatability, rounding), mm
+PROBE_TOLERANCE_MM = 0.05
+
+
 def apply_probe_results(session: Session, files: FileStore, settings, setup_id: int, text: str,
                         by: str | None) -> Any:
     """Refine the confirmed workpiece pose from the probing program's results (least squares) and make
-    it a new result revision; it must be confirmed again before export (the usual safety gate)."""
+    it a new result revision; it must be confirmed again before export (the usual safety gate).
+
+    The workpiece records ``probe_before`` (its pose before) and ``probe_residuals_mm`` (per touch,
+    distance of the measured contact from its refined face). A residual beyond ``max_residual_mm``
+    (the part does not fit the model there: burr, wrong face, probe not calibrated) still makes a new
+    revision, with the pose unchanged, the fit kept as ``probe_fit_T_table_obj`` and ``probe_fail``
+    set: the result is FAIL (uncertainty check) and neither exported nor probed again until an
+    operator adjusts the pose or the setup is located anew. ``probe_deviation_mm`` (per touch, the
+    measured face's distance from where the confirmed pose put it) beyond ``probe_expected_mm``
+    (3 sigma of the confirmed pose + PROBE_TOLERANCE_MM) also marks the result FAIL, with the refined
+    pose kept: the localisation was wrong by more than it stated (adjusting accepts it)."""
+    from app.geometry.transforms import inv, transform_points
     from app.planning.probing import parse_probe_results, refine_offset
     from app.services.machines import get_machine
     from app.services.setups import _new_revision, review_fields
@@ -272,26 +287,49 @@ def apply_probe_results(session: Session, files: FileStore, settings, setup_id: 
             raise ValueError("the setup has no workpiece offset, so no program frame")
         machine = get_machine(session, s.machine_id)
         # the log holds tips in the program frame: the datum slot the program ran in
+        T_prog_table = program_frame(machine, off)
         ref = refine_offset(touches, tips, T_table_datum, ball_radius_mm=params.ball_radius_mm,
-                            T_prog_table=program_frame(machine, off))
+                            T_prog_table=T_prog_table)
     except ValueError as exc:
         raise Invalid(f"probe results: {exc}") from None
-    if ref.reason:
-        raise Invalid(f"probe results not used: {ref.reason}")
-    T_table_obj = ref.T_table_datum @ np.linalg.inv(datum)
+    failed = bool(ref.reason) and bool(ref.residuals_mm)  # a fit exists, but the part does not fit it
+    if ref.reason and not failed:
+        raise Invalid(f"probe results not used: {ref.reason}", code="probe_results_unusable")
+    # per touch, how far the measured face lies from where the confirmed pose put it (along its normal)
+    tips_table = transform_points(inv(T_prog_table), tips)
+    deviation = [float(np.dot(np.asarray(t.normal), tip + [0, 0, params.ball_radius_mm] - np.asarray(t.contact))
+                       - params.ball_radius_mm) for t, tip in zip(touches, tips_table)]
+    sig = wp.get("sigma") or {}
+    expected = 3.0 * max(float(sig.get(k) or 0.0) for k in ("x_mm", "y_mm", "z_mm")) + PROBE_TOLERANCE_MM
+    off_by = max(abs(v) for v in deviation)
+    beyond = off_by > expected  # the pose was wrong by more than it said: the probe is right, the result FAIL
+    T_fit = ref.T_table_datum @ np.linalg.inv(datum)
     T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
     worst = float(np.max(np.abs(ref.residuals_mm))) if ref.residuals_mm else 0.0
     objs = []
     for o in s.result["objects"]:
         if o is wp or o["name"] == wp["name"]:
-            o = {**o, "T_table_obj": T_table_obj.tolist(), "T_cam_obj": (T_cam_table @ T_table_obj).tolist(),
-                 "probed": True, "probe_residuals_mm": list(ref.residuals_mm),
-                 "sigma": {**(o.get("sigma") or {}), "x_mm": max(worst, 0.005), "y_mm": max(worst, 0.005),
-                           "z_mm": max(worst, 0.005)},
-                 "flags": [*o.get("flags", []), "refined by probing"]}
+            before = {"T_table_obj": o["T_table_obj"], "sigma": o.get("sigma")}
+            o = {k: v for k, v in o.items() if k != "probe_fail"}
+            o.update({"probed": True, "probe_before": before, "probe_residuals_mm": list(ref.residuals_mm),
+                      "probe_deviation_mm": deviation, "probe_expected_mm": expected})
+            if beyond and not failed:
+                o["probe_fail"] = (f"a touch found the part {off_by:.3f} mm from the confirmed pose, beyond its "
+                                   f"expected error {expected:.3f} mm (3 sigma + {PROBE_TOLERANCE_MM} mm): the "
+                                   "localisation understated its error; check the setup, adjust to accept")
+            if failed:
+                o.update({"probe_fail": ref.reason, "probe_fit_T_table_obj": T_fit.tolist(),
+                          "flags": [*o.get("flags", []), "probing FAIL"]})
+            else:  # the refined pose (also when it is FAIL for being far from the confirmed one)
+                o.update({"T_table_obj": T_fit.tolist(), "T_cam_obj": (T_cam_table @ T_fit).tolist(),
+                          "sigma": {**(o.get("sigma") or {}), "x_mm": max(worst, 0.005), "y_mm": max(worst, 0.005),
+                                    "z_mm": max(worst, 0.005)},
+                          "flags": [*o.get("flags", []), "refined by probing"]})
         objs.append(o)
-    result = review_fields({**s.result, "objects": objs}, get_machine(session, s.machine_id), settings)
-    _new_revision(s, result, f"refined by probing (dx {ref.dx_mm:+.3f}, dy {ref.dy_mm:+.3f}, dz {ref.dz_mm:+.3f} mm, "
+    result = review_fields({**s.result, "objects": objs}, machine, settings)
+    what = (f"probing FAIL: {ref.reason}" if failed else
+            f"refined by probing, FAIL: {off_by:.3f} mm off > {expected:.3f} mm" if beyond else "refined by probing")
+    _new_revision(s, result, f"{what} (dx {ref.dx_mm:+.3f}, dy {ref.dy_mm:+.3f}, dz {ref.dz_mm:+.3f} mm, "
                              f"dC {ref.dc_deg:+.4f} deg)", by)
     session.add(s)
     session.flush()

@@ -255,6 +255,8 @@ def review_fields(result: dict, machine, settings) -> dict:
     """Add pass/fail per object and the proposed offset to a result (in place) and return it."""
     for o in result.get("objects", []):
         ok, why = uncertainty_check(o, settings.max_sigma_mm, settings.max_sigma_deg)
+        if o.get("probe_fail"):  # probing showed the part does not sit as this pose says
+            ok, why = False, f"probing: {o['probe_fail']}"
         o["uncertainty_pass"], o["uncertainty_reason"] = ok, why
     result["offset"] = proposed_offset(result, machine.T_machine_table, settings.max_tilt_deg)
     return result
@@ -307,6 +309,7 @@ def adjust_object(session: Session, files: FileStore, settings, setup_id: int, *
     T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
     obj = {**objs[object_index], "T_table_obj": new.tolist(), "T_cam_obj": (T_cam_table @ new).tolist(),
            "adjusted": True, "score": None, "flags": [*objs[object_index].get("flags", []), "adjusted by operator"]}
+    obj.pop("probe_fail", None)  # a probing FAIL judged the old pose; the operator's pose is judged anew
     result = {**s.result, "objects": [obj if i == object_index else o for i, o in enumerate(objs)]}
     machine = get_machine(session, s.machine_id)
     result = review_fields(result, machine, settings)

@@ -154,3 +154,44 @@ def test_probe_results_refine_the_pose(server, bracket_setup):
         c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": rev})
         r = c.post(f"/api/v1/setups/{sid}/probe-results", content="1 2\n", headers={"Content-Type": "text/plain"})
         assert r.status_code == 422 and "expected 3 or 9 numbers" in r.json()["detail"], r.text
+
+
+def test_probe_results_beyond_the_expected_error_mark_the_result_fail(server):
+    """Touches that find the part further from the confirmed pose than its stated error allow: a new
+    revision with the probed pose, the per-touch deviation, and FAIL (no export, no program) until
+    an operator accepts it by adjusting."""
+    from app.geometry.transforms import pose_from_xyz_euler
+    from app.planning.probing import ProbingParams, choose_touch_points
+
+    mesh = library_mesh("bracket_140")
+    datum = np.asarray(library_entry("bracket_140").T_obj_datum)
+    with server.client() as c:
+        m = make_machine(c, None)
+        wp = next(x for x in c.get("/api/v1/models", params={"kind": "workpiece"}).json()["data"]
+                  if x["key"] == "bracket_140")
+    T = place_on_table(mesh, 320.0, 160.0, 5.0)
+    sid = located_setup(server, m["id"], T, T_obj_datum=datum, model=(wp["id"], wp["current_revision"]), sigma_mm=0.05)
+    with server.client("operator") as c:
+        c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": 1})
+        touches = choose_touch_points(mesh, T, datum, ProbingParams())
+        for shift_mm, fail in ((0.1, False), (0.6, True)):  # 3 sigma + 0.05 = 0.2 mm expected
+            T_true_datum = pose_from_xyz_euler(shift_mm, 0, 0) @ np.asarray(
+                c.get(f"/api/v1/setups/{sid}").json()["result"]["objects"][0]["T_table_obj"]) @ datum
+            log = _simulated_probe_log(touches, T_true_datum, None, ProbingParams().ball_radius_mm,
+                                       T_prog_table=_program_frame(c, sid))
+            r = c.post(f"/api/v1/setups/{sid}/probe-results", content=log, headers={"Content-Type": "text/plain"})
+            assert r.status_code == 200, r.text
+            o = r.json()["result"]["objects"][0]
+            assert o["probe_before"]["T_table_obj"] and len(o["probe_deviation_mm"]) == 4
+            assert max(abs(v) for v in o["probe_deviation_mm"]) == pytest.approx(shift_mm, abs=0.01)
+            assert o["uncertainty_pass"] is (not fail) and (("probe_fail" in o) is fail), o.get("uncertainty_reason")
+            rev = r.json()["result_revision"]
+            assert c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": rev}).status_code == 200
+            touches = choose_touch_points(mesh, np.asarray(o["T_table_obj"]), datum, ProbingParams())
+        assert "probing" in o["uncertainty_reason"]
+        r = c.get(f"/api/v1/setups/{sid}/probing-program")
+        assert r.status_code == 422 and r.json()["code"] == "uncertainty_fail", r.text
+        r = c.post(f"/api/v1/setups/{sid}/adjust", json={"object_index": 0, "nudge": {"dx_mm": 0.0}})
+        assert r.status_code == 200, r.text
+        o = r.json()["result"]["objects"][0]
+        assert o["uncertainty_pass"] and "probe_fail" not in o
