@@ -51,7 +51,8 @@ class KnownObstacle:
             raise ValueError(f"obstacle {self.name}: top must be finite, got {self.top_mm}")
 
     def polygon(self) -> Polygon:
-        return Polygon(self.footprint_xy_mm)
+        """The footprint (empty for an object taken to be inside drawn zones)."""
+        return Polygon(self.footprint_xy_mm) if len(self.footprint_xy_mm) >= 3 else Polygon()
 
 
 def assumed_unlocated(
@@ -67,12 +68,55 @@ def assumed_unlocated(
             for n, h in unlocated]
 
 
+def drawn_zones(text: str, table_xy_mm: tuple[float, float, float, float], z_max_mm: float) -> list[KnownObstacle]:
+    """No-go zones an operator drew: ``"x0,y0,x1,y1,top;..."`` (table frame, mm), each a rectangle
+    inside the table with a top in [0, z_max_mm]. ValueError with the reason for anything else (the
+    text is data: numbers and separators only, at most 20 zones)."""
+    zones = [z for z in str(text).split(";") if z.strip()]
+    if not zones or len(zones) > 20:
+        raise ValueError("no_go: give 1 to 20 zones as x0,y0,x1,y1,top_mm separated by ';'")
+    tx0, ty0, tx1, ty1 = table_xy_mm
+    out = []
+    for k, z in enumerate(zones, 1):
+        parts = z.split(",")
+        if len(parts) != 5 or not all(re.fullmatch(r"\s*[-+]?\d+(\.\d+)?\s*", p) for p in parts):
+            raise ValueError(f"no_go zone {k}: expected five plain numbers x0,y0,x1,y1,top_mm")
+        x0, y0, x1, y1, top = (float(p) for p in parts)
+        xa, xb, ya, yb = min(x0, x1), max(x0, x1), min(y0, y1), max(y0, y1)
+        if xb - xa <= 0 or yb - ya <= 0:
+            raise ValueError(f"no_go zone {k}: the rectangle has no area")
+        if xa < tx0 - 1e-6 or ya < ty0 - 1e-6 or xb > tx1 + 1e-6 or yb > ty1 + 1e-6:
+            raise ValueError(f"no_go zone {k}: outside the table [{tx0:.0f}, {tx1:.0f}] x [{ty0:.0f}, {ty1:.0f}] mm")
+        if not 0.0 <= top <= z_max_mm:
+            raise ValueError(f"no_go zone {k}: top {top} mm must be in [0, {z_max_mm:.1f}] mm (the machine's travel)")
+        out.append(KnownObstacle(f"drawn zone {k}", "drawn", ((xa, ya), (xb, ya), (xb, yb), (xa, yb)), top,
+                                 f"x {xa:.1f}..{xb:.1f}, y {ya:.1f}..{yb:.1f} mm"))
+    return out
+
+
+def assumed_in_zones(unlocated: Sequence[tuple[str, float]], zones: Sequence[KnownObstacle],
+                     support_top_mm: float) -> list[KnownObstacle]:
+    """Objects not located, taken to be inside the operator's drawn zones (the operator says where
+    they are): every zone then reaches at least as high as the highest located top plus the tallest
+    such object, and the objects are listed as assumed there (no footprint of their own)."""
+    tallest = max((h for _, h in unlocated), default=0.0)
+    out = []
+    for z in zones:
+        out.append(replace(z, top_mm=max(z.top_mm, float(support_top_mm) + tallest)))
+    for n, h in unlocated:
+        out.append(KnownObstacle(n, "assumed", (), float(support_top_mm) + float(h),
+                                 "not located: inside the drawn zones (the operator's word)"))
+    return out
+
+
 def raise_grid(grid: HeightGrid, obstacles: Sequence[KnownObstacle]) -> HeightGrid:
     """A copy of ``grid`` with every cell a footprint touches raised to at least that obstacle's top
     (the grid's own lateral inflation still applies to every query)."""
     img = grid.heights_mm.copy()
     c = grid.cell_mm
     for ob in obstacles:
+        if len(ob.footprint_xy_mm) < 3:
+            continue
         xy = np.asarray(ob.footprint_xy_mm, dtype=float)
         px = (xy - np.asarray(grid.origin_xy_mm)) / c - 0.5
         layer = np.zeros_like(img, dtype=np.uint8)
@@ -314,14 +358,22 @@ def plan_probing_program(
     except ValueError as exc:
         raise ProbingRefused("no_touch_points", str(exc)) from None
     wp = names[workpiece_index]
-    hidden = sorted({o for _, o in touch_conflicts(touches, assumed, wp, params, clearance_mm)})
+    # an assumed obstacle whose footprint covers the whole part is in the way wherever a touch goes
+    wp_hull = located[workpiece_index].polygon()
+    everywhere = [o for o in assumed if o.polygon().contains(wp_hull)]
+    hidden = sorted({o for _, o in touch_conflicts(touches, everywhere, wp, params, clearance_mm)})
     if hidden:
         raise ProbingRefused("obstacle_not_located", f"{', '.join(hidden)} asked for but not located; it may stand "
-                             "anywhere on the table, where the touches go. Locate it (another image) or remove it "
-                             "from the setup's models")
+                             "anywhere on the table, where the touches go. Locate it (another image), draw where "
+                             "it is (no_go) or remove it from the setup's models")
     grids = object_grids(meshes, poses, grow)
     touches, blocked = place_touches(
-        choose, lambda ts: touch_conflicts_grids(ts, grids, names, workpiece_index, params, clearance_mm))
+        choose, lambda ts: (touch_conflicts(ts, assumed, wp, params, clearance_mm)
+                            + touch_conflicts_grids(ts, grids, names, workpiece_index, params, clearance_mm)))
+    unknown = sorted({o for _, o in blocked if o in {a.name for a in assumed}})
+    if unknown:
+        raise ProbingRefused("obstacle_not_located", f"every touch placement comes within {clearance_mm} mm of "
+                             f"{', '.join(unknown)} (not located or drawn); locate the objects or draw tighter zones")
     if blocked:
         pairs = ", ".join(f"touch {t} by {o}" for t, o in blocked)
         raise ProbingRefused("touch_blocked", f"a touch cannot be reached with {clearance_mm} mm clearance: {pairs}")
@@ -361,6 +413,8 @@ __all__ = [
     "SOURCES",
     "KnownObstacle",
     "assumed_unlocated",
+    "drawn_zones",
+    "assumed_in_zones",
     "raise_grid",
     "retract_height_mm",
     "table_z_max_mm",

@@ -58,7 +58,7 @@ def plan(session: Session, files: FileStore, request: dict[str, Any]) -> dict:
 
 
 #: query parameters of the probing program: a closed set, each value checked below
-PROGRAM_PARAMS = ("dialect", "dry_run", "wcs", "clearance_mm")
+PROGRAM_PARAMS = ("dialect", "dry_run", "wcs", "clearance_mm", "no_go")
 #: dialects the probing program is written in (the NC-file dialects of app.machine.nc_files otherwise)
 PROBE_DIALECTS = ("linuxcnc",)
 CLEARANCE_RANGE_MM = (1.0, 20.0)
@@ -111,10 +111,11 @@ def check_program_params(machine, *, dialect: str, wcs: str, clearance_mm: float
 
 
 def probing_program(session: Session, files: FileStore, settings, setup_id: int, *, dry_run: bool,
-                    wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0) -> str:
+                    wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0,
+                    no_go: str | None = None) -> str:
     """LinuxCNC probing program for the confirmed workpiece of a setup (the datum frame in slot ``wcs``)."""
     return probing_plan(session, files, settings, setup_id, dry_run=dry_run, wcs=wcs, dialect=dialect,
-                        clearance_mm=clearance_mm).gcode
+                        clearance_mm=clearance_mm, no_go=no_go).gcode
 
 
 def _unlocated(session: Session, files: FileStore, s) -> list[tuple[str, float]]:
@@ -181,7 +182,8 @@ def _frame_of(session: Session, machine, s, slot: str, off: dict) -> str:
 
 
 def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *, dry_run: bool = True,
-                 wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0, check_frame: bool = True):
+                 wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0, check_frame: bool = True,
+                 no_go: str | None = None):
     """The probing program with its touches and safe travel paths: ProbingProgram (travel in the
     table frame, G-code in the datum frame of slot ``wcs``).
 
@@ -192,7 +194,14 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
     a verified export of this revision, read back now; ``check_frame=False`` skips that for drawing the
     plan, and ``settings=None`` takes the process's settings)."""
     from app.geometry.transforms import transform_points
-    from app.planning.probing_safety import ProbingRefused, assumed_unlocated, plan_probing_program
+    from app.planning.probing_safety import (
+        ProbingRefused,
+        assumed_in_zones,
+        assumed_unlocated,
+        drawn_zones,
+        plan_probing_program,
+        table_z_max_mm,
+    )
     from app.services.export import plausibility, require_confirmed
     from app.services.machines import get_machine
 
@@ -203,6 +212,13 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
     s = get_setup(session, setup_id)
     machine = get_machine(session, s.machine_id)
     _, slot, clearance = check_program_params(machine, dialect=dialect, wcs=wcs, clearance_mm=clearance_mm)
+    zones = []
+    if no_go is not None:
+        try:
+            zones = drawn_zones(no_go, _table_xy(session, files, machine),
+                                table_z_max_mm(machine.T_machine_table, machine.travel_mm))
+        except ValueError as exc:
+            raise Invalid(str(exc), code="no_go_invalid") from None
     require_confirmed(s, "probed")
     _, off = plausibility(s, machine, settings, use="probing program")
     meshes, poses, names, sig, wp = setup_scene(session, files, setup_id)
@@ -214,7 +230,13 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
         raise Invalid(f"objects {', '.join(unknown)} were asked for but not located and their size is not known; "
                       "locate them before probing", code="obstacle_not_located")
     tops = [float(transform_points(p, m.vertices)[:, 2].max()) for m, p in zip(meshes, poses)]
-    assumed = assumed_unlocated(unlocated, _table_xy(session, files, machine), max([0.0, *tops])) if unlocated else []
+    support = max([0.0, *tops])
+    if unlocated and zones:  # the operator drew where they are
+        assumed = assumed_in_zones(unlocated, zones, support)
+    elif unlocated:
+        assumed = [*assumed_unlocated(unlocated, _table_xy(session, files, machine), support), *zones]
+    else:
+        assumed = zones
     frame = (_frame_of(session, machine, s, slot, off) if check_frame
              else f"{slot} = datum of {off.get('object')} (drawing only, not read back)")
     try:

@@ -26,7 +26,7 @@ LINE = re.compile(r"^(%|\([^()\n]*\)|G21 G90 G17 G94 G40 G5[4-9](\.[1-3])?|M2"
 PAYLOADS = ["G54\nG0 Z-500", "G54\rG0 Z-500", "M3 S20000", "foo", "G54 (x)", "G54)\nM3 (", "G54;M3", "G54 ",
             "", "G10 L2 P1 X0", "%", "nan", "inf", "-inf", "1e309", "-5", "1000", "5\nM3", "true\nM3",
             "linuxcnc\nG0 Z-500", "G54\u2028G0 Z-500", "G54\x00M3", "%0AG0 Z-500"]
-PARAMS = ("wcs", "dialect", "dry_run", "clearance_mm")
+PARAMS = ("wcs", "dialect", "dry_run", "clearance_mm", "no_go")
 
 
 def _bracket(c):
@@ -89,10 +89,10 @@ def test_injection_through_every_parameter_and_dialect(server, good_setup, param
         assert r.status_code == 422, (params, r.status_code, r.text)
         body = r.json()
         assert body.get("code") in ("invalid_parameter", "unknown_dialect", "dialect_not_supported", "wcs_not_a_slot",
-                                    "clearance_out_of_range"), (params, body)
+                                    "clearance_out_of_range", "no_go_invalid"), (params, body)
         if param != "dialect" and dialect != "linuxcnc":
             assert body["code"] in ("dialect_not_supported", "invalid_parameter", "clearance_out_of_range",
-                                    "wcs_not_a_slot"), body
+                                    "wcs_not_a_slot", "no_go_invalid"), body
 
 
 def test_unknown_and_repeated_parameters_are_refused(server, good_setup):
@@ -205,6 +205,21 @@ def test_objects_asked_for_but_not_located_refuse_with_their_names(server, good_
         assert r.status_code == 422, r.text
         body = r.json()
         assert body["code"] == "obstacle_not_located" and clamp["name"] in body["detail"], body
+    # the operator draws where the clamp is (away from the part): the program plans around that zone
+    zone = "-380,100,-250,190,40"  # the test table model is centred on the table frame: x, y in +-400, +-200
+    r = _get(server, sid, {"no_go": zone})
+    assert r.status_code == 200, r.text
+    head = r.text.splitlines()
+    assert head[2] == "(obstacles assumed: located 1, assumed 1, drawn 1)"
+    assert any(ln.startswith(f"(obstacle assumed: {clamp['name']}") and "inside the drawn zones" in ln for ln in head)
+    assert any(ln.startswith("(obstacle drawn: drawn zone 1") for ln in head)
+    _program_is_plain(r.text)
+    # a zone over the part's faces blocks the touches, with its name
+    r = _get(server, sid, {"no_go": "240,100,360,200,30"})
+    assert r.status_code == 422 and r.json()["code"] == "obstacle_not_located" and "drawn zone 1" in r.json()["detail"]
+    for bad in ("1,2,3", "0,0,0,10,5", "0,0,10,10,-1", "0,0,10,10,1e3", "0,0,900,10,5", "0,0,10,10,5;" * 21, "0x10,0,1,1,1"):
+        r = _get(server, sid, {"no_go": bad})
+        assert r.status_code == 422 and r.json()["code"] == "no_go_invalid", (bad, r.text)
 
 
 @pytest.mark.integration

@@ -19,9 +19,29 @@ from tests.support.probing_scenes import TABLE_XY_MM, T_MACHINE_TABLE, TRAVEL_MM
 CLEARANCE = 5.0
 
 
-def plan(sc, assume_unlocated: bool = True, dry_run: bool = False):
-    tops = [float((m.vertices[:, 2] + p[2, 3]).max()) for m, p in zip(sc.meshes, sc.poses)]
-    assumed = assumed_unlocated(sc.unlocated, TABLE_XY_MM, max([0.0, *tops])) if sc.unlocated and assume_unlocated else []
+def support_top(sc) -> float:
+    return max([0.0, *(float((m.vertices[:, 2] + p[2, 3]).max()) for m, p in zip(sc.meshes, sc.poses))])
+
+
+def check(sc, prog):
+    """The independent check of a program against the scene's truth."""
+    return check_program(prog.gcode, sc.truth, T_table_prog=inv(sc.T_prog_table()), clearance_mm=CLEARANCE,
+                         nominal_contacts=[t.contact_tip for t in prog.touches])
+
+
+def scenes_with_unlocated_clamps(seed: int, n: int):
+    """Of n random scenes whose clamps are all left unlocated, those that have clamps."""
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        sc = random_probing_scene(rng, p_located=0.0)
+        if sc.unlocated:
+            yield sc
+
+
+def plan(sc, assume_unlocated: bool = True, dry_run: bool = False, assumed=None):
+    if assumed is None:
+        assumed = (assumed_unlocated(sc.unlocated, TABLE_XY_MM, support_top(sc))
+                   if sc.unlocated and assume_unlocated else [])
     return plan_probing_program(sc.meshes, sc.poses, sc.names, sc.workpiece_index, sc.T_obj_datum, sigma_mm=sc.sigma_mm,
                                 assumed=assumed, T_machine_table=T_MACHINE_TABLE, travel_mm=TRAVEL_MM,
                                 T_prog_table=sc.T_prog_table(), slot="G54", clearance_mm=CLEARANCE, dry_run=dry_run,
@@ -43,8 +63,7 @@ def run_scenes(n: int, seed: int) -> dict:
             continue
         assert not sc.unlocated, f"scene {k}: a program was issued with {sc.unlocated} not located"
         codes["planned"] += 1
-        rep = check_program(prog.gcode, sc.truth, T_table_prog=inv(sc.T_prog_table()), clearance_mm=CLEARANCE,
-                            nominal_contacts=[t.contact_tip for t in prog.touches])
+        rep = check(sc, prog)
         if not rep.ok or len(rep.touches) != len(prog.touches):
             bad.append((k, rep.violations[:3], [(t.hit, t.obstacle) for t in rep.touches]))
         touches += len(rep.touches)
@@ -75,18 +94,13 @@ def test_1000_random_scenes_have_no_violation():
 def test_the_checker_finds_the_issues_clamp():
     """Planning around the located objects only (the issue's bug) drives the probe into clamps that
     were not located: the checker sees it."""
-    rng = np.random.default_rng(7)
     found = 0
-    for _ in range(80):
-        sc = random_probing_scene(rng, p_located=0.0)
-        if not sc.unlocated:
-            continue
+    for sc in scenes_with_unlocated_clamps(seed=7, n=80):
         try:
             prog = plan(sc, assume_unlocated=False)
         except ProbingRefused:
             continue
-        rep = check_program(prog.gcode, sc.truth, T_table_prog=inv(sc.T_prog_table()), clearance_mm=CLEARANCE,
-                            nominal_contacts=[t.contact_tip for t in prog.touches])
+        rep = check(sc, prog)
         found += any(o.startswith("strap_clamp") for _, _, o, _ in rep.violations) or not all(t.hit for t in rep.touches)
     assert found >= 3
 
@@ -142,6 +156,40 @@ def test_a_touch_beside_a_clamp_moves_along_the_face():
     prog = plan(sc)
     y_touches = [t for t in prog.touches if t.name.startswith("y")]
     assert len(y_touches) == 2 and min(abs(t.contact[0] - x_default) for t in y_touches) > 20.0
-    rep = check_program(prog.gcode, sc.truth, T_table_prog=inv(sc.T_prog_table()), clearance_mm=CLEARANCE,
-                        nominal_contacts=[t.contact_tip for t in prog.touches])
+    rep = check(sc, prog)
     assert rep.ok and len(rep.touches) == 4, rep.violations[:3]
+
+
+def test_clamps_not_located_inside_drawn_zones_are_avoided():
+    """The operator draws a rectangle around each clamp that was not located (its true footprint, 2 mm
+    margin, any top: the tallest candidate counts): the planner plans around the zones, and the
+    program passes the independent check against the truth."""
+    from app.planning.probing_safety import assumed_in_zones as assume_in_zones
+    from app.planning.probing_safety import drawn_zones
+
+    planned = 0
+    for sc in scenes_with_unlocated_clamps(seed=11, n=60):
+        rects = []
+        for ob in sc.truth:
+            if ob.name not in dict(sc.unlocated):
+                continue
+            pts = []
+            for g in ob.parts:
+                c, s = np.cos(np.radians(getattr(g, "yaw_deg", 0.0))), np.sin(np.radians(getattr(g, "yaw_deg", 0.0)))
+                hx, hy = g.half_xy if isinstance(g, Box) else (g.radius, g.radius)
+                for u, v in ((hx, hy), (hx, -hy), (-hx, hy), (-hx, -hy)):
+                    pts.append((g.centre_xy[0] + c * u - s * v, g.centre_xy[1] + s * u + c * v))
+            P = np.asarray(pts)
+            lo, hi = np.clip(P.min(axis=0) - 2, 0, None), np.minimum(P.max(axis=0) + 2, [800, 400])
+            rects.append(f"{lo[0]:.1f},{lo[1]:.1f},{hi[0]:.1f},{hi[1]:.1f},10")
+        zones = drawn_zones(";".join(rects), TABLE_XY_MM, 300.0)
+        try:
+            prog = plan(sc, assumed=assume_in_zones(sc.unlocated, zones, support_top(sc)))
+        except ProbingRefused as exc:
+            assert exc.code in ("obstacle_not_located", "touch_blocked", "outside_travel"), exc
+            continue
+        planned += 1
+        assert "(obstacle drawn: drawn zone 1" in prog.gcode
+        rep = check(sc, prog)
+        assert rep.ok, rep.violations[:3]
+    assert planned >= 5

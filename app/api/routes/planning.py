@@ -45,7 +45,11 @@ def probing_program(request: Request, session: SessionDep, files: FilesDep, sett
                     dry_run: bool = False,
                     wcs: str = Query(default="G54", max_length=8, description="work-offset slot of the controller"),
                     dialect: str = Query(default="linuxcnc", max_length=16, description="linuxcnc"),
-                    clearance_mm: float = Query(default=5.0, description="travel clearance, mm (1..20)")) -> Response:
+                    clearance_mm: float = Query(default=5.0, description="travel clearance, mm (1..20)"),
+                    no_go: str | None = Query(default=None, max_length=2000,
+                                              description="no-go zones the operator drew, table frame: "
+                                                          "x0,y0,x1,y1,top_mm;... (objects asked for but not "
+                                                          "located are taken to be inside them)")) -> Response:
     keys = [k for k, _ in request.query_params.multi_items()]
     unknown = sorted({k for k in keys if k not in svc.PROGRAM_PARAMS})
     if unknown:
@@ -54,7 +58,7 @@ def probing_program(request: Request, session: SessionDep, files: FilesDep, sett
     if len(keys) != len(set(keys)):
         raise Invalid("a query parameter is given twice", code="repeated_parameter")
     text = svc.probing_program(session, files, settings, setup_id, dry_run=dry_run, wcs=wcs, dialect=dialect,
-                               clearance_mm=clearance_mm)
+                               clearance_mm=clearance_mm, no_go=no_go)
     return Response(text, media_type="text/plain",
                     headers={"Content-Disposition": f'attachment; filename="setup{setup_id}-probe.ngc"'})
 
