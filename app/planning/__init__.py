@@ -6,6 +6,9 @@
 * ``profile``    the profile planner: taut path over the real height profile of each move's corridor.
 * ``collision``  independent swept-body check against the scene meshes (python-fcl).
 * ``probing``    touch points, LinuxCNC G-code (G38.2 / dry run), probe-log parser, offset refinement.
+* ``probing_safety`` what a probing program may assume (located / assumed obstacles), where touches
+                 may go, retract height, machine travel; the gated planner ``plan_probing_program``.
+* ``program_check``  independent check of a program: parsed back, exact distances to true primitives.
 * ``request``    a JSON request -> planned path answer (CLI ``setupcam plan`` and REST).
 """
 

@@ -18,10 +18,12 @@ middle, both ``depth_mm`` below the face's upper edge; the top face one touch at
 inaccessibility. Every touch is checked by casting a ray into the part: the first surface met must
 be the datum face at the touch point.
 
-Program (``probing_gcode``): ``G21 G90 G17 G94``, the active work offset, travel with ``G1`` at the
-fastest feed the axes allow (the linking path from the profile planner, which is collision-free for
-the given obstacles), ``G38.2`` towards each face (from ``approach_mm`` outside, to ``overtravel_mm``
-inside), retract along the normal, ``M2``. No tool change, no offsets written. Results are logged
+Program (``probing_gcode``): header comment lines (frame, obstacles; see probing_safety), the title,
+``G21 G90 G17 G94 G40`` and the work offset slot (from a closed set), ``G0 Z`` to the retract height,
+travel with ``G1`` at the fastest feed the axes allow (the linking path from the profile planner,
+which is collision-free for the given obstacles), ``G38.2`` towards each face (from ``approach_mm``
+outside, to ``overtravel_mm`` inside), retract along the normal, ``G0 Z`` retract, ``M2``. No tool
+change, no offsets written, no machine-coordinate (G53) moves. Results are logged
 with ``(PROBEOPEN file)`` / ``(PROBECLOSE)``: LinuxCNC writes one line per successful probe with the
 program-frame X Y Z A B C U V W (older versions X Y Z). The dry-run variant replaces every
 ``G38.2`` by a ``G1`` to the nominal contact and opens no log.
@@ -43,6 +45,7 @@ import trimesh
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 from shapely.geometry import LineString, Polygon
+from shapely.geometry import Point as ShapelyPoint
 from shapely.ops import polylabel, unary_union
 
 from app.geometry.transforms import check_pose, inv, tilt_deg, transform_points
@@ -77,6 +80,10 @@ class TouchPoint:
 
 @dataclass(frozen=True)
 class ProbingParams:
+    """The touch probe and the touch cycle (mm, mm/min). The probe: a ball of ``ball_radius_mm`` on a
+    stylus (vertical cylinder of ``stylus_radius_mm`` from the ball centre up to ``stylus_length_mm``
+    above the tip), then the body (``body_radius_mm``, ``body_length_mm`` above the stylus)."""
+
     ball_radius_mm: float = 1.5
     stylus_length_mm: float = 30.0
     approach_mm: float = 5.0
@@ -84,6 +91,9 @@ class ProbingParams:
     depth_mm: float = 5.0
     edge_margin_mm: float = 2.0
     probe_feed_mm_min: float = 100.0
+    stylus_radius_mm: float = 1.0
+    body_radius_mm: float = 15.0
+    body_length_mm: float = 80.0
 
 
 @dataclass(frozen=True)
@@ -136,11 +146,24 @@ def _first_hit_ok(mesh_datum, point, normal, tol_mm=0.05) -> bool:
     return bool(np.linalg.norm(first - point) < tol_mm)
 
 
+@dataclass(frozen=True)
+class TouchPlacement:
+    """Where on the datum faces the touches go: ``rot_fracs`` the two touches on the longer side face
+    and ``single_frac`` the one on the other (fractions along the usable line), ``top_frac`` the top
+    touch as fractions (u, v) of the usable top region's xy bounds (None: its pole of inaccessibility).
+    The default is the module doc's choice; a planner may try others to keep clear of clamps."""
+
+    rot_fracs: tuple[float, float] = (0.15, 0.85)
+    single_frac: float = 0.5
+    top_frac: tuple[float, float] | None = None
+
+
 def choose_touch_points(
-    mesh: trimesh.Trimesh, T_table_obj: ArrayLike, T_obj_datum: ArrayLike, params: ProbingParams = ProbingParams()
+    mesh: trimesh.Trimesh, T_table_obj: ArrayLike, T_obj_datum: ArrayLike, params: ProbingParams = ProbingParams(),
+    placement: TouchPlacement = TouchPlacement(),
 ) -> tuple[TouchPoint, ...]:
     """Touch points on the datum faces (see the module doc); raises ValueError with a reason when a
-    face is missing or too small for the ball."""
+    face is missing or too small for the ball (or the top point of ``placement`` is off the face)."""
     T_table_datum = check_pose(T_table_obj, "T_table_obj") @ check_pose(T_obj_datum, "T_obj_datum")
     T_datum_obj = inv(check_pose(T_obj_datum, "T_obj_datum"))
     md = trimesh.Trimesh(transform_points(T_datum_obj, mesh.vertices), mesh.faces, process=False)
@@ -165,7 +188,7 @@ def choose_touch_points(
     rot = max(sides, key=lambda s: s[4].length)
     touches_d: list[tuple[str, np.ndarray, float, np.ndarray]] = []  # (name, n_datum, offset, point_datum)
     for a, name, sign, off, seg, z in sides:
-        fracs = (0.15, 0.85) if (a == rot[0]) else (0.5,)
+        fracs = tuple(placement.rot_fracs) if (a == rot[0]) else (placement.single_frac,)
         for k, f in enumerate(fracs):
             u = seg.interpolate(f, normalized=True).x
             p = np.zeros(3)
@@ -179,8 +202,15 @@ def choose_touch_points(
         raise ValueError(f"top datum face is too small for a {r:.1f} mm ball")
     if region.geom_type == "MultiPolygon":
         region = max(region.geoms, key=lambda g: g.area)
-    c = polylabel(region, tolerance=0.5)
-    touches_d.append(("z", E[2], off, np.array([c.x, c.y, off])))
+    if placement.top_frac is None:
+        c = polylabel(region, tolerance=0.5)
+        cx, cy = c.x, c.y
+    else:
+        x0, y0, x1, y1 = region.bounds
+        cx, cy = x0 + placement.top_frac[0] * (x1 - x0), y0 + placement.top_frac[1] * (y1 - y0)
+        if not region.contains(ShapelyPoint(cx, cy)):
+            raise ValueError(f"top touch at ({cx:.2f}, {cy:.2f}) (datum frame) is off the usable top face")
+    touches_d.append(("z", E[2], off, np.array([cx, cy, off])))
 
     out = []
     R = T_table_datum[:3, :3]
@@ -223,13 +253,33 @@ def probing_gcode(
     dry_run: bool = False,
     results_file: str = "setupcam_probe.txt",
     title: str = "setupcam probing",
+    header: Sequence[str] = (),
+    retract_z_mm: float | None = None,
+    method: str = "profile",
 ) -> ProbingProgram:
     """LinuxCNC program that visits ``touches`` in order from ``start_table`` and back to it.
 
     ``obstacles`` / ``travel_probe``: what the linking moves must clear (e.g. a :class:`HeightGrid`
     of the workpiece and clamps, the probe's tip as working distance 0 and its widest radius).
     Positions in the program are the tip in the program frame (``T_prog_table @ p_table``).
+    ``wcs``: the work-offset slot the program runs in (one of G54..G59.3, written as given in that
+    closed set, never pasted). ``header``: comment lines (see app.planning.probing_safety.header_lines)
+    written first. ``retract_z_mm``: table z of the tip for the first and last move (straight up or
+    down at the unknown start position; default: the start's z). ``method``: travel planner,
+    "profile" (default) or "reference" (the reference method, for comparison).
     """
+    from app.machine.base import SLOT_P_NUMBERS
+    from app.planning.probing_safety import comment
+    from app.planning.reference import ReferenceOptions, plan_path_reference
+
+    slot = str(wcs).upper()
+    if slot not in SLOT_P_NUMBERS:
+        raise ValueError(f"unknown work offset slot {wcs!r}; use one of {', '.join(SLOT_P_NUMBERS)}")
+    if method not in ("profile", "reference"):
+        raise ValueError(f"unknown travel method {method!r}; use 'profile' or 'reference'")
+    if any(not ln.startswith("(") or not ln.endswith(")") or "\n" in ln or ln.count("(") != 1 or ln.count(")") != 1
+           for ln in header):
+        raise ValueError("header lines must be single comments; build them with probing_safety.comment")
     T = np.eye(4) if T_prog_table is None else check_pose(T_prog_table, "T_prog_table")
     if tilt_deg(T) > 1e-6:
         raise ValueError("T_prog_table must not tilt: the program frame's z has to be the table's z")
@@ -238,26 +288,44 @@ def probing_gcode(
                          f"below an edge with {travel_probe.clearance_mm} mm clearance for the probe body; "
                          "reduce depth_mm or use a longer stylus")
     start = np.asarray(start_table, dtype=float).reshape(3)
+    retract = float(start[2] if retract_z_mm is None else retract_z_mm)
+    if not np.all(np.isfinite(start)) or not np.isfinite(retract):
+        raise ValueError("start and retract height must be finite numbers")
+    if retract < start[2]:
+        raise ValueError(f"retract height {retract:.3f} mm is below the start height {start[2]:.3f} mm")
     stops = [start] + [np.asarray(t.approach_tip) for t in touches] + [start]
     travel = []
     lines = [
         "%",
-        f"({title}{' - DRY RUN: probe moves as G1 to the nominal contact' if dry_run else ''})",
+        *header,
+        comment(f"{title}{' - DRY RUN: probe moves as G1 to the nominal contact' if dry_run else ''}"),
         "(units mm; positions are the probe tip = ball bottom; probe tool and its length offset must be active)",
-        f"G21 G90 G17 G94 G40 {wcs}",
-        "G53 G0 Z0 (retract to the top of machine travel)",
+        f"G21 G90 G17 G94 G40 {slot}",
     ]
+
+    def prog(p_table):
+        p = transform_points(T, p_table)[0]
+        if not np.all(np.isfinite(p)):
+            raise ValueError("a program position is not a finite number")
+        return p
+
+    z_retract = prog([start[0], start[1], retract])[2]  # no tilt: one z for every xy
+    lines.append(f"G0 Z{_fmt(z_retract)} (retract: above every obstacle by the clearance, inside the travel)")
     if not dry_run:
         lines.append(f"(PROBEOPEN {results_file})")
 
     def move(p_table, feed):
-        p = transform_points(T, p_table)[0]
-        return f"G1 {_xyz(p)} F{feed:.0f}"
+        return f"G1 {_xyz(prog(p_table))} F{feed:.0f}"
 
-    p0 = transform_points(T, start)[0]
+    p0 = prog(start)
     lines += [f"G0 X{_fmt(p0[0])} Y{_fmt(p0[1])}", f"G1 Z{_fmt(p0[2])} F{speeds.z_mm_min:.0f}"]
     for i in range(len(stops) - 1):
-        path = plan_path_profile([stops[i], stops[i + 1]], obstacles, travel_probe, ProfileOptions(speeds=speeds))
+        if method == "profile":
+            path = plan_path_profile([stops[i], stops[i + 1]], obstacles, travel_probe, ProfileOptions(speeds=speeds))
+        else:
+            margin = travel_probe.radius_mm + travel_probe.lateral_margin_mm
+            path = plan_path_reference([stops[i], stops[i + 1]], obstacles, travel_probe,
+                                       ReferenceOptions(box_margin_mm=margin))
         travel.append(path)
         lines.append(f"(travel to {'touch ' + touches[i].name if i < len(touches) else 'start'})")
         W = np.asarray(path.waypoints)
@@ -265,16 +333,15 @@ def probing_gcode(
             lines.append(move(b, segment_feed_mm_min(a, b, speeds)))
         if i < len(touches):
             t = touches[i]
-            lines.append(f"(touch {t.name}: face normal {np.round(t.normal, 4).tolist()})")
+            lines.append(comment(f"touch {t.name}: face normal {np.round(t.normal, 4).tolist()}"))
             if dry_run:
                 lines.append(move(t.contact_tip, params.probe_feed_mm_min))
             else:
-                p = transform_points(T, t.probe_end_tip)[0]
-                lines.append(f"G38.2 {_xyz(p)} F{params.probe_feed_mm_min:.0f}")
+                lines.append(f"G38.2 {_xyz(prog(t.probe_end_tip))} F{params.probe_feed_mm_min:.0f}")
             lines.append(move(t.approach_tip, params.probe_feed_mm_min * 5))
     if not dry_run:
         lines.append("(PROBECLOSE)")
-    lines += ["G53 G0 Z0", "M2", "%"]
+    lines += [f"G0 Z{_fmt(z_retract)}", "M2", "%"]
     return ProbingProgram(tuple(touches), tuple(travel), "\n".join(lines) + "\n", dry_run)
 
 
@@ -454,6 +521,7 @@ __all__ = [
     "ProbingParams",
     "ProbingProgram",
     "TouchPoint",
+    "TouchPlacement",
     "OffsetRefinement",
     "choose_touch_points",
     "probing_gcode",

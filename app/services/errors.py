@@ -4,11 +4,15 @@ from __future__ import annotations
 
 
 class ServiceError(Exception):
+    """``detail``: one plain sentence; ``code``: an optional machine-readable reason code (snake_case),
+    answered next to the detail as ``{"detail": ..., "code": ...}`` (e.g. the probing program's gates)."""
+
     status_code = 400
 
-    def __init__(self, detail: str):
+    def __init__(self, detail: str, code: str | None = None):
         super().__init__(detail)
         self.detail = detail
+        self.code = code
 
 
 class NotFound(ServiceError):

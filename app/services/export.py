@@ -24,28 +24,49 @@ from app.store.models import Export, utcnow
 log = logging.getLogger(__name__)
 
 
+def require_confirmed(setup, use: str = "exported") -> None:
+    """Conflict (with a reason code) unless the setup is located and its current revision confirmed."""
+    if setup.status != "located":
+        raise Conflict(f"setup {setup.id} is {setup.status}; only a located and confirmed setup can be {use}",
+                       code="not_located")
+    if setup.confirmed_revision is None:
+        raise Conflict(f"setup {setup.id} is not confirmed; an operator must confirm result revision "
+                       f"{setup.result_revision} before it can be {use}", code="not_confirmed")
+    if setup.confirmed_revision != setup.result_revision:
+        raise Conflict(f"setup {setup.id} was changed after confirmation (confirmed revision "
+                       f"{setup.confirmed_revision}, current {setup.result_revision}); confirm again",
+                       code="changed_after_confirmation")
 
 
-def plausibility(setup, machine, settings) -> tuple[WorkOffset, dict]:
-    """The offset to write, or Invalid with every reason it must not be written."""
+def plausibility_reasons(setup, machine) -> list[tuple[str, str]]:
+    """Every (reason code, sentence) why the setup's offset must not be used; empty when it may.
+    Codes: no_workpiece, tilt (the offset is not usable, e.g. tilted beyond the tolerance),
+    uncertainty_fail, outside_travel."""
     result = setup.result or {}
     off = result.get("offset")
     if not off:
-        raise Invalid(f"setup {setup.id} has no workpiece offset to export (no workpiece located)")
+        return [("no_workpiece", f"setup {setup.id} has no workpiece offset (no workpiece located)")]
     reasons = []
     if not off.get("ok", False):
-        reasons.append(off.get("reason") or "offset not usable")
+        reasons.append(("tilt", off.get("reason") or "offset not usable"))
     wp = next((o for o in result.get("objects", []) if o.get("name") == off.get("object")), None)
     if wp is not None and not wp.get("uncertainty_pass", False):
-        reasons.append(f"uncertainty too large ({wp.get('uncertainty_reason') or 'unknown'}); "
-                       "take another image with more of the part visible, or probe it")
+        reasons.append(("uncertainty_fail", f"uncertainty too large ({wp.get('uncertainty_reason') or 'unknown'}); "
+                        "take another image with more of the part visible, or probe it"))
     for axis in ("x", "y", "z"):
         v = off[f"{axis}_mm"]
         lo, hi = machine.travel_mm[axis]
         if not lo <= v <= hi:
-            reasons.append(f"{axis.upper()} {v:.3f} mm is outside the machine's travel [{lo}, {hi}] mm")
+            reasons.append(("outside_travel", f"{axis.upper()} {v:.3f} mm is outside the machine's travel [{lo}, {hi}] mm"))
+    return reasons
+
+
+def plausibility(setup, machine, settings, use: str = "export") -> tuple[WorkOffset, dict]:
+    """The offset to write, or Invalid with every reason it must not be used (code: the first reason's)."""
+    reasons = plausibility_reasons(setup, machine)
     if reasons:
-        raise Invalid("export refused: " + "; ".join(reasons))
+        raise Invalid(f"{use} refused: " + "; ".join(r for _, r in reasons), code=reasons[0][0])
+    off = setup.result["offset"]
     return WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"]), off
 
 
@@ -174,14 +195,7 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
         slot_number(slot)
     except ValueError as exc:
         raise Invalid(str(exc)) from None
-    if setup.status != "located":
-        raise Conflict(f"setup {setup_id} is {setup.status}; only a located and confirmed setup can be exported")
-    if setup.confirmed_revision is None:
-        raise Conflict(f"setup {setup_id} is not confirmed; an operator must confirm result revision "
-                       f"{setup.result_revision} before export")
-    if setup.confirmed_revision != setup.result_revision:
-        raise Conflict(f"setup {setup_id} was changed after confirmation (confirmed revision "
-                       f"{setup.confirmed_revision}, current {setup.result_revision}); confirm again")
+    require_confirmed(setup)
     key = (idempotency_key or "").strip()[:100] or f"setup{setup_id}-r{setup.result_revision}-{slot}"
     done = session.exec(select(Export).where(Export.setup_id == setup_id, Export.slot == slot,
                                             Export.result_revision == setup.result_revision)).first()

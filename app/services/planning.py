@@ -57,39 +57,208 @@ def plan(session: Session, files: FileStore, request: dict[str, Any]) -> dict:
         raise Invalid(str(exc)) from None
 
 
-def probing_program(session: Session, files: FileStore, setup_id: int, *, dry_run: bool,
-                    wcs: str = "G54") -> str:
-    """LinuxCNC probing program for the confirmed workpiece of a setup (table frame as program frame)."""
-    return probing_plan(session, files, setup_id, dry_run=dry_run, wcs=wcs).gcode
+#: query parameters of the probing program: a closed set, each value checked below
+PROGRAM_PARAMS = ("dialect", "dry_run", "wcs", "clearance_mm", "no_go")
+#: dialects the probing program is written in (the NC-file dialects of app.machine.nc_files otherwise)
+PROBE_DIALECTS = ("linuxcnc",)
+CLEARANCE_RANGE_MM = (1.0, 20.0)
 
 
-def probing_plan(session: Session, files: FileStore, setup_id: int, *, dry_run: bool = True,
-                 wcs: str = "G54"):
-    """The probing program with its touches and safe travel paths (table frame, mm): ProbingProgram."""
-    from app.planning.obstacles import height_grid_from_meshes
-    from app.planning.path import ProbeParams
-    from app.planning.probing import ProbingParams, choose_touch_points, probing_gcode
+def controller_slots(controller: dict | None, dialect: str) -> tuple[str, ...]:
+    """Work-offset slots the machine's controller holds (a closed set): a file controller's dialect's
+    slots, an OPC UA controller's one slot unless its node ids carry {slot}/{p}, LinuxCNC's nine; without
+    a controller, the slots of the requested dialect."""
+    from app.machine import SLOT_P_NUMBERS, parse_controller_settings
+    from app.machine.nc_files import SLOTS
 
+    if not controller:
+        return SLOTS.get(dialect, ())
+    c = parse_controller_settings(controller)
+    if c.kind == "file":
+        return SLOTS[c.dialect]
+    if c.kind == "opcua":
+        ids = " ".join(v or "" for v in c.nodes.model_dump().values())
+        return tuple(SLOT_P_NUMBERS) if ("{slot}" in ids or "{p}" in ids) else (c.slot,)
+    return SLOTS["linuxcnc"]
+
+
+def check_program_params(machine, *, dialect: str, wcs: str, clearance_mm: float) -> tuple[str, str, float]:
+    """(dialect, slot, clearance) from the closed sets, or Invalid with a reason code: unknown_dialect,
+    dialect_not_supported, dialect_mismatch, wcs_not_a_slot, clearance_out_of_range."""
+    from app.machine.nc_files import DIALECTS
+
+    d = str(dialect).lower()
+    if d not in DIALECTS:
+        raise Invalid(f"dialect {dialect!r} is unknown; use one of {', '.join(DIALECTS)}", code="unknown_dialect")
+    if d not in PROBE_DIALECTS:
+        raise Invalid(f"probing programs are written for {', '.join(PROBE_DIALECTS)} only, not {d}",
+                      code="dialect_not_supported")
+    ctrl = machine.controller or {}
+    if ctrl.get("kind") == "file" and ctrl.get("dialect") != d:
+        raise Invalid(f"machine {machine.id} reads {ctrl.get('dialect')} files; a {d} program would not run there",
+                      code="dialect_mismatch")
+    slots = controller_slots(ctrl, d)
+    slot = str(wcs).upper()
+    if slot not in slots:
+        raise Invalid(f"wcs {wcs!r} is not a work-offset slot of machine {machine.id}'s controller; use one of "
+                      f"{', '.join(slots)}", code="wcs_not_a_slot")
+    c = float(clearance_mm)
+    lo, hi = CLEARANCE_RANGE_MM
+    if not np.isfinite(c) or not lo <= c <= hi:
+        raise Invalid(f"clearance_mm must be a finite number in [{lo}, {hi}] mm, got {clearance_mm!r}",
+                      code="clearance_out_of_range")
+    return d, slot, c
+
+
+def probing_program(session: Session, files: FileStore, settings, setup_id: int, *, dry_run: bool,
+                    wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0,
+                    no_go: str | None = None) -> str:
+    """LinuxCNC probing program for the confirmed workpiece of a setup (the datum frame in slot ``wcs``)."""
+    return probing_plan(session, files, settings, setup_id, dry_run=dry_run, wcs=wcs, dialect=dialect,
+                        clearance_mm=clearance_mm, no_go=no_go).gcode
+
+
+def _unlocated(session: Session, files: FileStore, s) -> list[tuple[str, float]]:
+    """(name, height as modelled in mm) of every object asked for but not located."""
+    from app.geometry.mesh import load_mesh
+    from app.services import library
+
+    asked = {int(m["model_id"]): m.get("revision") for m in (s.models or [])}
+    out = []
+    for nf in (s.result or {}).get("not_found") or []:
+        if not nf.get("name"):
+            continue
+        h = None
+        mid = nf.get("model_id")
+        if mid is not None:
+            rev = library.get_revision(session, int(mid), asked.get(int(mid)))
+            h = float(load_mesh(files.read(rev.glb_sha256), "model.glb", "mm").extents[2])
+        out.append((str(nf["name"]), h if h is not None else float("inf")))
+    return out
+
+
+def _table_xy(session: Session, files: FileStore, machine) -> tuple[float, float, float, float]:
+    """The table model's xy bounds in the table frame (mm)."""
+    from app.geometry.mesh import load_mesh
+    from app.services import library
+
+    rev = library.get_revision(session, machine.table_model_id, machine.table_revision)
+    b = load_mesh(files.read(rev.glb_sha256), "model.glb", "mm").bounds
+    return float(b[0, 0]), float(b[0, 1]), float(b[1, 0]), float(b[1, 1])
+
+
+def _frame_of(session: Session, machine, s, slot: str, off: dict) -> str:
+    """The header's frame sentence; with a live controller, Conflict unless a verified export of this
+    revision to ``slot`` exists and the controller holds it now (read back)."""
+    from sqlmodel import select
+
+    from app.machine import ControllerError, WorkOffset, make_controller
+    from app.services.errors import Unavailable
+    from app.store.models import Export
+
+    want = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"])
+    what = (f"{slot} = datum of {off.get('object')}, setup {s.id} revision {s.result_revision}: {want} "
+            "(machine coordinates)")
+    kind = (machine.controller or {}).get("kind")
+    if kind not in ("linuxcnc", "opcua"):
+        return what + "; not read back here: load this revision's offset into " + slot + " before running"
+    done = session.exec(select(Export).where(Export.setup_id == s.id, Export.slot == slot,
+                                            Export.result_revision == s.result_revision,
+                                            Export.status == "verified")).first()
+    if done is None:
+        raise Conflict(f"the program runs in {slot}, which must hold the datum of setup {s.id} revision "
+                       f"{s.result_revision}: export it to {slot} (verified) first", code="frame_not_exported")
+    controller = make_controller(machine.controller)
+    try:
+        now = controller.read_offset(slot)
+    except ControllerError as exc:
+        raise Unavailable(f"{exc}; the program's frame {slot} could not be read back") from None
+    finally:
+        controller.close()
+    if not want.agrees_with(now, controller.rounding_mm, controller.rounding_deg):
+        raise Conflict(f"{slot} on the controller is {now}, not the exported {want}; export again",
+                       code="frame_mismatch")
+    return what + f"; verified export {done.id}, read back now"
+
+
+def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *, dry_run: bool = True,
+                 wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0, check_frame: bool = True,
+                 no_go: str | None = None):
+    """The probing program with its touches and safe travel paths: ProbingProgram (travel in the
+    table frame, G-code in the datum frame of slot ``wcs``).
+
+    Gates (each refusal a 409/422 with a reason code): the parameters' closed sets; the export's
+    gates (confirmed revision, tilt, uncertainty PASS, offset inside the travel); then the planner's
+    (app.planning.probing_safety.plan_probing_program: objects asked for but not located, touches
+    blocked, retract height and every move inside the travel); the frame (with a live controller:
+    a verified export of this revision, read back now; ``check_frame=False`` skips that for drawing the
+    plan, and ``settings=None`` takes the process's settings)."""
+    from app.geometry.transforms import transform_points
+    from app.planning.probing_safety import (
+        ProbingRefused,
+        assumed_in_zones,
+        assumed_unlocated,
+        drawn_zones,
+        plan_probing_program,
+        table_z_max_mm,
+    )
+    from app.services.export import plausibility, require_confirmed
+    from app.services.machines import get_machine
+
+    if settings is None:
+        from app.config import get_settings
+
+        settings = get_settings()
     s = get_setup(session, setup_id)
-    if s.confirmed_revision is None or s.confirmed_revision != s.result_revision:
-        raise Conflict(f"setup {setup_id} is not confirmed in its current revision; confirm it before probing")
+    machine = get_machine(session, s.machine_id)
+    _, slot, clearance = check_program_params(machine, dialect=dialect, wcs=wcs, clearance_mm=clearance_mm)
+    zones = []
+    if no_go is not None:
+        try:
+            zones = drawn_zones(no_go, _table_xy(session, files, machine),
+                                table_z_max_mm(machine.T_machine_table, machine.travel_mm))
+        except ValueError as exc:
+            raise Invalid(str(exc), code="no_go_invalid") from None
+    require_confirmed(s, "probed")
+    _, off = plausibility(s, machine, settings, use="probing program")
     meshes, poses, names, sig, wp = setup_scene(session, files, setup_id)
     if wp is None:
-        raise Invalid(f"setup {setup_id} has no located workpiece to probe")
-    i = names.index(wp["name"])
-    datum = np.asarray(wp["T_obj_datum"]) if wp.get("T_obj_datum") else np.eye(4)
-    params = ProbingParams()
-    travel = ProbeParams(working_distance_mm=0.0, clearance_mm=5.0, radius_mm=15.0, length_mm=80.0)
+        raise Invalid(f"setup {setup_id} has no located workpiece to probe", code="no_workpiece")
+    unlocated = _unlocated(session, files, s)
+    unknown = [n for n, h in unlocated if not np.isfinite(h)]
+    if unknown:
+        raise Invalid(f"objects {', '.join(unknown)} were asked for but not located and their size is not known; "
+                      "locate them before probing", code="obstacle_not_located")
+    tops = [float(transform_points(p, m.vertices)[:, 2].max()) for m, p in zip(meshes, poses)]
+    support = max([0.0, *tops])
+    if unlocated and zones:  # the operator drew where they are
+        assumed = assumed_in_zones(unlocated, zones, support)
+    elif unlocated:
+        assumed = [*assumed_unlocated(unlocated, _table_xy(session, files, machine), support), *zones]
+    else:
+        assumed = zones
+    frame = (_frame_of(session, machine, s, slot, off) if check_frame
+             else f"{slot} = datum of {off.get('object')} (drawing only, not read back)")
     try:
-        touches = choose_touch_points(meshes[i], poses[i], datum, params)
-        grid = height_grid_from_meshes(meshes, poses, uncertainty_mm=3.0 * sig)
-        top = max(float((m.bounds[1][2] + p[2, 3])) for m, p in zip(meshes, poses))
-        centre = poses[i][:3, 3]
-        program = probing_gcode(touches, grid, travel, (centre[0], centre[1], top + 50.0), params=params,
-                                dry_run=dry_run, wcs=wcs, title=f"setupcam probing, setup {setup_id}")
-    except ValueError as exc:
-        raise Invalid(f"probing program: {exc}") from None
-    return program
+        return plan_probing_program(
+            meshes, poses, names, names.index(wp["name"]),
+            np.asarray(wp["T_obj_datum"]) if wp.get("T_obj_datum") else np.eye(4),
+            sigma_mm=sig, assumed=assumed, T_machine_table=np.asarray(machine.T_machine_table, dtype=float),
+            travel_mm=machine.travel_mm, T_prog_table=program_frame(machine, off), slot=slot, clearance_mm=clearance,
+            dry_run=dry_run, frame_text=frame, title=f"setupcam probing, setup {setup_id}",
+            unknown_note="" if s.models else "objects not asked for in the setup are not known to the planner")
+    except ProbingRefused as exc:
+        raise Invalid(f"probing program refused: {exc}", code=exc.code) from None
+
+
+def program_frame(machine, off: dict) -> np.ndarray:
+    """``T_prog_table``: the frame the export writes into the slot, X, Y, Z, C of the datum in machine
+    coordinates (its small tilt dropped, as the export drops it), seen from the table frame."""
+    from app.geometry.transforms import inv
+    from app.machine import WorkOffset
+
+    T_machine_prog = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"]).to_pose()
+    return inv(T_machine_prog) @ np.asarray(machine.T_machine_table, dtype=float)
 
 
 def _touches(session: Session, files: FileStore, setup_id: int):
@@ -104,10 +273,25 @@ def _touches(session: Session, files: FileStore, setup_id: int):
     return choose_touch_points(meshes[i], poses[i], datum, params), params, wp, datum
 
 
+#: what a touch may differ from the truth besides the located error (probe repeatability, rounding), mm
+PROBE_TOLERANCE_MM = 0.05
+
+
 def apply_probe_results(session: Session, files: FileStore, settings, setup_id: int, text: str,
                         by: str | None) -> Any:
     """Refine the confirmed workpiece pose from the probing program's results (least squares) and make
-    it a new result revision; it must be confirmed again before export (the usual safety gate)."""
+    it a new result revision; it must be confirmed again before export (the usual safety gate).
+
+    The workpiece records ``probe_before`` (its pose before) and ``probe_residuals_mm`` (per touch,
+    distance of the measured contact from its refined face). A residual beyond ``max_residual_mm``
+    (the part does not fit the model there: burr, wrong face, probe not calibrated) still makes a new
+    revision, with the pose unchanged, the fit kept as ``probe_fit_T_table_obj`` and ``probe_fail``
+    set: the result is FAIL (uncertainty check) and neither exported nor probed again until an
+    operator adjusts the pose or the setup is located anew. ``probe_deviation_mm`` (per touch, the
+    measured face's distance from where the confirmed pose put it) beyond ``probe_expected_mm``
+    (3 sigma of the confirmed pose + PROBE_TOLERANCE_MM) also marks the result FAIL, with the refined
+    pose kept: the localisation was wrong by more than it stated (adjusting accepts it)."""
+    from app.geometry.transforms import inv, transform_points
     from app.planning.probing import parse_probe_results, refine_offset
     from app.services.machines import get_machine
     from app.services.setups import _new_revision, review_fields
@@ -120,25 +304,54 @@ def apply_probe_results(session: Session, files: FileStore, settings, setup_id: 
         tips = parse_probe_results(text)
         touches, params, wp, datum = _touches(session, files, setup_id)
         T_table_datum = np.asarray(wp["T_table_obj"]) @ datum
-        ref = refine_offset(touches, tips, T_table_datum, ball_radius_mm=params.ball_radius_mm)
+        off = (s.result or {}).get("offset") or {}
+        if not off:
+            raise ValueError("the setup has no workpiece offset, so no program frame")
+        machine = get_machine(session, s.machine_id)
+        # the log holds tips in the program frame: the datum slot the program ran in
+        T_prog_table = program_frame(machine, off)
+        ref = refine_offset(touches, tips, T_table_datum, ball_radius_mm=params.ball_radius_mm,
+                            T_prog_table=T_prog_table)
     except ValueError as exc:
         raise Invalid(f"probe results: {exc}") from None
-    if ref.reason:
-        raise Invalid(f"probe results not used: {ref.reason}")
-    T_table_obj = ref.T_table_datum @ np.linalg.inv(datum)
+    failed = bool(ref.reason) and bool(ref.residuals_mm)  # a fit exists, but the part does not fit it
+    if ref.reason and not failed:
+        raise Invalid(f"probe results not used: {ref.reason}", code="probe_results_unusable")
+    # per touch, how far the measured face lies from where the confirmed pose put it (along its normal)
+    tips_table = transform_points(inv(T_prog_table), tips)
+    deviation = [float(np.dot(np.asarray(t.normal), tip + [0, 0, params.ball_radius_mm] - np.asarray(t.contact))
+                       - params.ball_radius_mm) for t, tip in zip(touches, tips_table)]
+    sig = wp.get("sigma") or {}
+    expected = 3.0 * max(float(sig.get(k) or 0.0) for k in ("x_mm", "y_mm", "z_mm")) + PROBE_TOLERANCE_MM
+    off_by = max(abs(v) for v in deviation)
+    beyond = off_by > expected  # the pose was wrong by more than it said: the probe is right, the result FAIL
+    T_fit = ref.T_table_datum @ np.linalg.inv(datum)
     T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
     worst = float(np.max(np.abs(ref.residuals_mm))) if ref.residuals_mm else 0.0
     objs = []
     for o in s.result["objects"]:
         if o is wp or o["name"] == wp["name"]:
-            o = {**o, "T_table_obj": T_table_obj.tolist(), "T_cam_obj": (T_cam_table @ T_table_obj).tolist(),
-                 "probed": True, "probe_residuals_mm": list(ref.residuals_mm),
-                 "sigma": {**(o.get("sigma") or {}), "x_mm": max(worst, 0.005), "y_mm": max(worst, 0.005),
-                           "z_mm": max(worst, 0.005)},
-                 "flags": [*o.get("flags", []), "refined by probing"]}
+            before = {"T_table_obj": o["T_table_obj"], "sigma": o.get("sigma")}
+            o = {k: v for k, v in o.items() if k != "probe_fail"}
+            o.update({"probed": True, "probe_before": before, "probe_residuals_mm": list(ref.residuals_mm),
+                      "probe_deviation_mm": deviation, "probe_expected_mm": expected})
+            if beyond and not failed:
+                o["probe_fail"] = (f"a touch found the part {off_by:.3f} mm from the confirmed pose, beyond its "
+                                   f"expected error {expected:.3f} mm (3 sigma + {PROBE_TOLERANCE_MM} mm): the "
+                                   "localisation understated its error; check the setup, adjust to accept")
+            if failed:
+                o.update({"probe_fail": ref.reason, "probe_fit_T_table_obj": T_fit.tolist(),
+                          "flags": [*o.get("flags", []), "probing FAIL"]})
+            else:  # the refined pose (also when it is FAIL for being far from the confirmed one)
+                o.update({"T_table_obj": T_fit.tolist(), "T_cam_obj": (T_cam_table @ T_fit).tolist(),
+                          "sigma": {**(o.get("sigma") or {}), "x_mm": max(worst, 0.005), "y_mm": max(worst, 0.005),
+                                    "z_mm": max(worst, 0.005)},
+                          "flags": [*o.get("flags", []), "refined by probing"]})
         objs.append(o)
-    result = review_fields({**s.result, "objects": objs}, get_machine(session, s.machine_id), settings)
-    _new_revision(s, result, f"refined by probing (dx {ref.dx_mm:+.3f}, dy {ref.dy_mm:+.3f}, dz {ref.dz_mm:+.3f} mm, "
+    result = review_fields({**s.result, "objects": objs}, machine, settings)
+    what = (f"probing FAIL: {ref.reason}" if failed else
+            f"refined by probing, FAIL: {off_by:.3f} mm off > {expected:.3f} mm" if beyond else "refined by probing")
+    _new_revision(s, result, f"{what} (dx {ref.dx_mm:+.3f}, dy {ref.dy_mm:+.3f}, dz {ref.dz_mm:+.3f} mm, "
                              f"dC {ref.dc_deg:+.4f} deg)", by)
     session.add(s)
     session.flush()

@@ -294,6 +294,8 @@ def review_fields(result: dict, machine, settings) -> dict:
                                                getattr(settings, "max_adjust_deg", 0.5))
         if not moved_ok:
             ok, why = False, "; ".join(w for w in (moved_why, why) if w)
+        if o.get("probe_fail"):  # probing showed the part does not sit as this pose says
+            ok, why = False, f"probing: {o['probe_fail']}"
         o["uncertainty_pass"], o["uncertainty_reason"] = ok, why
     result["offset"] = proposed_offset(result, machine.T_machine_table, settings.max_tilt_deg)
     return result
@@ -353,6 +355,7 @@ def adjust_object(session: Session, files: FileStore, settings, setup_id: int, *
     obj = {**before, "T_table_obj": new.tolist(), "T_cam_obj": (T_cam_table @ new).tolist(),
            "T_table_obj_fit": fitted, "adjusted": True, "score": None,
            "flags": [*before.get("flags", []), "adjusted by operator"]}
+    obj.pop("probe_fail", None)  # a probing FAIL judged the old pose; the operator's pose is judged anew
     result = {**s.result, "objects": [obj if i == object_index else o for i, o in enumerate(objs)]}
     machine = get_machine(session, s.machine_id)
     result = review_fields(result, machine, settings)

@@ -75,7 +75,8 @@ class PlanCache:
                 self._items.popitem(last=False)
 
 
-def probing_paths(session, files: FileStore, setup, plans: PlanCache | None = None) -> tuple[tuple[ViewPath, ...], str]:
+def probing_paths(session, files: FileStore, setup, plans: PlanCache | None = None,
+                  settings=None) -> tuple[tuple[ViewPath, ...], str]:
     """The probing plan of a confirmed setup as paths to draw (safe travel, and each touch move from its
     approach point to the expected contact), or none and why."""
     from app.services import planning
@@ -87,7 +88,8 @@ def probing_paths(session, files: FileStore, setup, plans: PlanCache | None = No
     if cached is not None:
         return cached
     try:
-        prog = planning.probing_plan(session, files, setup.id, dry_run=True)
+        # drawn before the export too: the controller's slot is not read back for a picture
+        prog = planning.probing_plan(session, files, settings, setup.id, dry_run=True, check_frame=False)
         paths = tuple([ViewPath(f"travel{i}", np.asarray(p.waypoints, float)) for i, p in enumerate(prog.travel)] +
                       [ViewPath(f"touch_{t.name}", np.asarray([t.approach_tip, t.contact_tip], float), TOUCH_RGB)
                        for t in prog.touches])
@@ -106,7 +108,7 @@ def _rgb(bgr) -> tuple[int, int, int]:
 
 
 def load_setup_view(engine, files: FileStore, meshes: MeshCache, setup_id: int,
-                    plans: PlanCache | None = None) -> SetupView | str:
+                    plans: PlanCache | None = None, settings=None) -> SetupView | str:
     """The 3D view of a setup, or a sentence saying why there is nothing to show yet."""
     try:
         with session_scope(engine) as session:
@@ -134,7 +136,7 @@ def load_setup_view(engine, files: FileStore, meshes: MeshCache, setup_id: int,
                 camera = ViewCamera(T_cam_table=np.asarray(table["T_cam_table"], float),
                                     K=np.asarray(s.intrinsics["K"], float), width=int(s.intrinsics["width"]),
                                     height=int(s.intrinsics["height"]), image_rgb=img[:, :, ::-1].copy())
-            paths, why = probing_paths(session, files, s, plans)
+            paths, why = probing_paths(session, files, s, plans, settings)
             return SetupView(title=f"Setup {s.id}", revision=s.result_revision, table_mesh=table_mesh,
                              objects=tuple(objects), camera=camera, editable=editable, paths=paths,
                              notes=(why,) if why else (), version=(s.result_revision, s.confirmed_revision))

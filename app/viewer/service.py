@@ -23,7 +23,7 @@ def start_viewer(app) -> ViewerServer:
 
     def load(kind: str, ident: int):
         if kind == "setup":
-            return load_setup_view(engine, files, meshes, ident, plans)
+            return load_setup_view(engine, files, meshes, ident, plans, settings)
         return load_model_view(engine, files, meshes, ident)
 
     def on_move(setup_id: int, object_index: int, T_table_obj: np.ndarray, who: str) -> bool:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -77,22 +75,45 @@ def test_probing_program_needs_confirmation_then_runs_on_linuxcnc(server, bracke
     if skip_reason():
         pytest.skip(skip_reason())
     sim = shared_sim()
-    sim.mdi("G10 L2 P1 X0 Y0 Z0 R0")  # G54 = machine zero: the program frame is the table frame
+    with server.client("operator") as c:
+        setup = c.get(f"/api/v1/setups/{sid}").json()
+        off = setup["result"]["offset"]
+        T_machine_table = np.asarray(c.get(f"/api/v1/machines/{setup['machine_id']}").json()["T_machine_table"])
+    # what a verified export writes into G54: the program runs in the datum frame
+    sim.mdi(f"G10 L2 P1 X{off['x_mm']:.6f} Y{off['y_mm']:.6f} Z{off['z_mm']:.6f} R{off['c_deg']:.6f}")
     sim.mdi("G54")
     sim.mdi("G53 G0 X-100 Y-100 Z0")
     sim.run_program(dry, name="probe_dry.ngc")
-    for _ in range(1800):
-        st = sim.status()
-        if st["interp_idle"]:
-            break
-        time.sleep(0.1)
-    assert st["interp_idle"], "the dry run did not finish within 180 s"
-    # It ends above its start (the part's origin) at the top: an error would have stopped it earlier.
-    assert st["position"] == pytest.approx([T[0, 3], T[1, 3], 0.0], abs=1e-3), st
+    st = sim.wait_idle(180.0)
+    # It ends above its start (the part's origin) at the retract height: an error would have stopped it earlier.
+    from app.machine import WorkOffset
+    from app.planning.probing import gcode_positions
+
+    end_prog = gcode_positions(dry)[-1][1]
+    end_machine = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"]).to_pose() @ [*end_prog, 1.0]
+    assert st["position"][:3] == pytest.approx(end_machine[:3], abs=1e-3), st
+    assert (T_machine_table @ [T[0, 3], T[1, 3], 0, 1])[:2] == pytest.approx(end_machine[:2], abs=1e-3)
 
 
-def _simulated_probe_log(touches, T_true_table_datum, T_nominal_table_datum, ball_r: float) -> str:
-    """Tip positions where the ball touches the TRUE faces, moving along each nominal approach direction."""
+def _program_frame(c, sid) -> np.ndarray:
+    """T_prog_table: the program runs in the datum slot the export writes (X, Y, Z, C of the offset)."""
+    from app.geometry.transforms import inv
+    from app.machine import WorkOffset
+
+    setup = c.get(f"/api/v1/setups/{sid}").json()
+    off = setup["result"]["offset"]
+    machine = c.get(f"/api/v1/machines/{setup['machine_id']}").json()
+    T_machine_prog = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"]).to_pose()
+    return inv(T_machine_prog) @ np.asarray(machine["T_machine_table"])
+
+
+def _simulated_probe_log(touches, T_true_table_datum, T_nominal_table_datum, ball_r: float,
+                         T_prog_table=None) -> str:
+    """Tip positions (program frame) where the ball touches the TRUE faces, moving along each nominal
+    approach direction."""
+    from app.geometry.transforms import transform_points
+
+    T_prog_table = np.eye(4) if T_prog_table is None else T_prog_table
     rows = []
     for t in touches:
         n_d = np.asarray(t.face_normal_datum)
@@ -101,7 +122,7 @@ def _simulated_probe_log(touches, T_true_table_datum, T_nominal_table_datum, bal
         d = -np.asarray(t.normal)                                # moving towards the nominal face
         # n_true . (c - t_true) = o + r along c = a + s d
         s = (t.face_offset_mm + ball_r - n_true @ (a - T_true_table_datum[:3, 3])) / (n_true @ d)
-        tip = a + s * d - [0, 0, ball_r]
+        tip = transform_points(T_prog_table, a + s * d - [0, 0, ball_r])[0]
         rows.append(" ".join(f"{v:.6f}" for v in tip) + " 0 0 0 0 0 0")
     return "\n".join(rows)
 
@@ -119,7 +140,8 @@ def test_probe_results_refine_the_pose(server, bracket_setup):
         touches = choose_touch_points(mesh, T_nom, datum, ProbingParams())
         shift = pose_from_xyz_euler(0.30, -0.20, 0.05, 0, 0, 0.08)
         T_true_datum = shift @ T_nom @ datum
-        log = _simulated_probe_log(touches, T_true_datum, T_nom @ datum, ProbingParams().ball_radius_mm)
+        log = _simulated_probe_log(touches, T_true_datum, T_nom @ datum, ProbingParams().ball_radius_mm,
+                                   T_prog_table=_program_frame(c, sid))
         r = c.post(f"/api/v1/setups/{sid}/probe-results", content=log, headers={"Content-Type": "text/plain"})
         assert r.status_code == 200, r.text
         body = r.json()
@@ -132,3 +154,44 @@ def test_probe_results_refine_the_pose(server, bracket_setup):
         c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": rev})
         r = c.post(f"/api/v1/setups/{sid}/probe-results", content="1 2\n", headers={"Content-Type": "text/plain"})
         assert r.status_code == 422 and "expected 3 or 9 numbers" in r.json()["detail"], r.text
+
+
+def test_probe_results_beyond_the_expected_error_mark_the_result_fail(server):
+    """Touches that find the part further from the confirmed pose than its stated error allow: a new
+    revision with the probed pose, the per-touch deviation, and FAIL (no export, no program) until
+    an operator accepts it by adjusting."""
+    from app.geometry.transforms import pose_from_xyz_euler
+    from app.planning.probing import ProbingParams, choose_touch_points
+
+    mesh = library_mesh("bracket_140")
+    datum = np.asarray(library_entry("bracket_140").T_obj_datum)
+    with server.client() as c:
+        m = make_machine(c, None)
+        wp = next(x for x in c.get("/api/v1/models", params={"kind": "workpiece"}).json()["data"]
+                  if x["key"] == "bracket_140")
+    T = place_on_table(mesh, 320.0, 160.0, 5.0)
+    sid = located_setup(server, m["id"], T, T_obj_datum=datum, model=(wp["id"], wp["current_revision"]), sigma_mm=0.05)
+    with server.client("operator") as c:
+        c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": 1})
+        touches = choose_touch_points(mesh, T, datum, ProbingParams())
+        for shift_mm, fail in ((0.1, False), (0.6, True)):  # 3 sigma + 0.05 = 0.2 mm expected
+            T_true_datum = pose_from_xyz_euler(shift_mm, 0, 0) @ np.asarray(
+                c.get(f"/api/v1/setups/{sid}").json()["result"]["objects"][0]["T_table_obj"]) @ datum
+            log = _simulated_probe_log(touches, T_true_datum, None, ProbingParams().ball_radius_mm,
+                                       T_prog_table=_program_frame(c, sid))
+            r = c.post(f"/api/v1/setups/{sid}/probe-results", content=log, headers={"Content-Type": "text/plain"})
+            assert r.status_code == 200, r.text
+            o = r.json()["result"]["objects"][0]
+            assert o["probe_before"]["T_table_obj"] and len(o["probe_deviation_mm"]) == 4
+            assert max(abs(v) for v in o["probe_deviation_mm"]) == pytest.approx(shift_mm, abs=0.01)
+            assert o["uncertainty_pass"] is (not fail) and (("probe_fail" in o) is fail), o.get("uncertainty_reason")
+            rev = r.json()["result_revision"]
+            assert c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": rev}).status_code == 200
+            touches = choose_touch_points(mesh, np.asarray(o["T_table_obj"]), datum, ProbingParams())
+        assert "probing" in o["uncertainty_reason"]
+        r = c.get(f"/api/v1/setups/{sid}/probing-program")
+        assert r.status_code == 422 and r.json()["code"] == "uncertainty_fail", r.text
+        r = c.post(f"/api/v1/setups/{sid}/adjust", json={"object_index": 0, "nudge": {"dx_mm": 0.0}})
+        assert r.status_code == 200, r.text
+        o = r.json()["result"]["objects"][0]
+        assert o["uncertainty_pass"] and "probe_fail" not in o

@@ -77,6 +77,8 @@ TOOL_TABLE = sim_mm.tbl
 
 [HAL]
 HALFILE = LIB:basic_sim.tcl -no_use_hal_manualtoolchange
+# a simulated touch probe (tests/machine/simprobe.py): trips where the ball meets the part in simprobe_part.json
+HALFILE = simprobe.hal
 
 [TRAJ]
 COORDINATES = X Y Z
@@ -203,7 +205,19 @@ class LinuxCncSim:
         ini.write_text(text)
         (self.workdir / "sim_mm.tbl").write_text("T1 P1 D0.0 Z0.0 ;\n")
         (self.workdir / "sim_mm.var").write_text("")  # fresh parameter file: no offsets from earlier runs
+        (self.workdir / "simprobe.hal").write_text(
+            f"loadusr -Wn simprobe {SYSTEM_PYTHON} {HERE / 'simprobe.py'} {self.workdir / 'simprobe_part.json'}\n"
+            + "".join(f"net J{j}:pos-fb => simprobe.{a}\n" for j, a in enumerate("xyz"))
+            + "net simprobe-trip simprobe.probe => motion.probe-input\n")
         return ini
+
+    def set_probe_part(self, boxes: list[dict], ball_radius_mm: float = 1.5) -> None:
+        """What the simulated probe touches: boxes turned about Z in machine coordinates (see
+        tests/machine/simprobe.py); an empty list clears it."""
+        tmp = self.workdir / "simprobe_part.json.tmp"
+        tmp.write_text(json.dumps({"ball_radius_mm": ball_radius_mm, "boxes": boxes}))
+        os.replace(tmp, self.workdir / "simprobe_part.json")  # the component never reads half a file
+        time.sleep(0.05)
 
     def start(self, timeout_s: float = 30.0) -> "LinuxCncSim":
         self._acquire_session_lock()
@@ -307,6 +321,17 @@ class LinuxCncSim:
     def mdi(self, code: str) -> dict:
         """Run one MDI line through the linuxcnc module (waits until in position); returns status."""
         return self._child("mdi", code, timeout_s=40)
+
+    def wait_idle(self, timeout_s: float = 180.0) -> dict:
+        """Status once the interpreter is idle (a program ended or stopped); SimError after the timeout."""
+        end = time.monotonic() + timeout_s
+        while True:
+            st = self.status()
+            if st["interp_idle"]:
+                return st
+            if time.monotonic() > end:
+                raise SimError(f"the program did not finish within {timeout_s:.0f} s")
+            time.sleep(0.1)
 
     def run_program(self, text: str, name: str = "program.ngc") -> dict:
         """Write ``text`` into the config folder, start it in auto mode, return once it moves."""

@@ -9,6 +9,7 @@ from pydantic import BaseModel, Field
 
 from app.api.deps import FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal
 from app.services import planning as svc
+from app.services.errors import Invalid
 
 router = APIRouter(tags=["planning"], dependencies=[Depends(get_principal)])
 
@@ -36,10 +37,28 @@ def plan_path(session: SessionDep, files: FilesDep, body: PlanBody) -> dict:
 
 @router.get("/setups/{setup_id}/probing-program", response_class=Response,
             summary="LinuxCNC probing program for the confirmed workpiece (G38.2; dry_run: plain moves)",
+            description="Refused (409/422 with a reason `code`) unless the setup passes the export's gates, every "
+                        "object asked for is located, and every move stays inside the machine's travel. Every "
+                        "parameter is checked against a closed set; unknown or repeated parameters are refused.",
             responses={200: {"content": {"text/plain": {}}}})
-def probing_program(session: SessionDep, files: FilesDep, setup_id: int, dry_run: bool = False,
-                    wcs: str = Query(default="G54")) -> Response:
-    text = svc.probing_program(session, files, setup_id, dry_run=dry_run, wcs=wcs)
+def probing_program(request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep, setup_id: int,
+                    dry_run: bool = False,
+                    wcs: str = Query(default="G54", max_length=8, description="work-offset slot of the controller"),
+                    dialect: str = Query(default="linuxcnc", max_length=16, description="linuxcnc"),
+                    clearance_mm: float = Query(default=5.0, description="travel clearance, mm (1..20)"),
+                    no_go: str | None = Query(default=None, max_length=2000,
+                                              description="no-go zones the operator drew, table frame: "
+                                                          "x0,y0,x1,y1,top_mm;... (objects asked for but not "
+                                                          "located are taken to be inside them)")) -> Response:
+    keys = [k for k, _ in request.query_params.multi_items()]
+    unknown = sorted({k for k in keys if k not in svc.PROGRAM_PARAMS})
+    if unknown:
+        raise Invalid(f"unknown query parameter(s) {', '.join(repr(k[:40]) for k in unknown)}; use "
+                      f"{', '.join(svc.PROGRAM_PARAMS)}", code="unknown_parameter")
+    if len(keys) != len(set(keys)):
+        raise Invalid("a query parameter is given twice", code="repeated_parameter")
+    text = svc.probing_program(session, files, settings, setup_id, dry_run=dry_run, wcs=wcs, dialect=dialect,
+                               clearance_mm=clearance_mm, no_go=no_go)
     return Response(text, media_type="text/plain",
                     headers={"Content-Disposition": f'attachment; filename="setup{setup_id}-probe.ngc"'})
 

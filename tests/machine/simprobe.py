@@ -1,0 +1,73 @@
+"""A simulated touch probe for the LinuxCNC test sim: a HAL user-space component ``simprobe``.
+
+    loadusr -Wn simprobe /usr/bin/python3 simprobe.py PART.json   (-Wn: wait for the component by name)
+    net J0:pos-fb => simprobe.x   (and y, z)       net simprobe-trip simprobe.probe => motion.probe-input
+
+It watches the machine position of the controlled point (the probe tip, the ball's lowest point)
+and sets ``probe`` while the ball (radius from the file) meets the true part: boxes turned about
+machine Z, in machine coordinates (mm). PART.json is re-read whenever it changes:
+
+    {"ball_radius_mm": 1.5, "boxes": [{"centre_xy": [x, y], "half_xy": [hx, hy], "yaw_deg": c,
+                                       "z0": z0, "z1": z1}]}
+
+A missing or empty file means nothing to touch (``probe`` stays false), so the sim runs every other
+test unchanged. Runs under the system Python that has LinuxCNC's ``hal`` module; standard library only.
+"""
+
+import json
+import math
+import os
+import sys
+import time
+
+import hal
+
+
+def load(path):
+    try:
+        with open(path) as f:
+            d = json.load(f)
+        return float(d.get("ball_radius_mm", 1.5)), list(d.get("boxes", []))
+    except (OSError, ValueError):
+        return 1.5, []
+
+
+def touches(x, y, z, r, boxes):
+    cz = z + r  # ball centre
+    for b in boxes:
+        c, s = math.cos(math.radians(b["yaw_deg"])), math.sin(math.radians(b["yaw_deg"]))
+        dx, dy = x - b["centre_xy"][0], y - b["centre_xy"][1]
+        lx, ly = c * dx + s * dy, -s * dx + c * dy
+        qx = max(abs(lx) - b["half_xy"][0], 0.0)
+        qy = max(abs(ly) - b["half_xy"][1], 0.0)
+        qz = max(b["z0"] - cz, cz - b["z1"], 0.0)
+        if qx * qx + qy * qy + qz * qz <= r * r:
+            return True
+    return False
+
+
+def main():
+    path = sys.argv[1]
+    h = hal.component("simprobe")
+    for axis in "xyz":
+        h.newpin(axis, hal.HAL_FLOAT, hal.HAL_IN)
+    h.newpin("probe", hal.HAL_BIT, hal.HAL_OUT)
+    h.ready()
+    stamp, r, boxes = None, 1.5, []
+    try:
+        while True:
+            try:
+                st = os.stat(path).st_mtime_ns
+            except OSError:
+                st = None
+            if st != stamp:
+                stamp = st
+                r, boxes = load(path) if st is not None else (1.5, [])
+            h["probe"] = bool(boxes) and touches(h["x"], h["y"], h["z"], r, boxes)
+            time.sleep(0.0005)
+    except KeyboardInterrupt:
+        pass
+
+
+if __name__ == "__main__":
+    main()
