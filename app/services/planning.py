@@ -164,7 +164,7 @@ def _frame_of(session: Session, machine, s, slot: str, off: dict) -> str:
         return what + "; not read back here: load this revision's offset into " + slot + " before running"
     done = session.exec(select(Export).where(Export.setup_id == s.id, Export.slot == slot,
                                             Export.result_revision == s.result_revision,
-                                            Export.status == "verified")).first()
+                                            Export.status == "written")).first()
     if done is None:
         raise Conflict(f"the program runs in {slot}, which must hold the datum of setup {s.id} revision "
                        f"{s.result_revision}: export it to {slot} (verified) first", code="frame_not_exported")

@@ -233,7 +233,7 @@ def test_frame_must_be_exported_and_held_by_the_controller(server, lcnc):
     assert r.status_code == 409 and r.json()["code"] == "frame_not_exported", r.text
     with server.client("operator") as c:
         e = c.post(f"/api/v1/setups/{sid}/export", json={"slot": "G56", "acknowledge_change": True})
-        assert e.status_code == 200 and e.json()["status"] == "verified", e.text
+        assert e.status_code == 200 and e.json()["status"] == "written", e.text
     r = _get(server, sid, {"wcs": "G56", "dry_run": "true"})
     assert r.status_code == 200, r.text
     head = r.text.splitlines()[1]

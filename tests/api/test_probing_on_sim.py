@@ -78,7 +78,7 @@ def test_real_program_on_the_sim_with_a_simulated_probe(server, lcnc):
     with server.client("operator") as c:
         assert c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": 1}).status_code == 200
         e = c.post(f"/api/v1/setups/{sid}/export", json={"slot": "G54", "acknowledge_change": True})
-        assert e.status_code == 200 and e.json()["status"] == "verified", e.text
+        assert e.status_code == 200 and e.json()["status"] == "written", e.text
         r = c.get(f"/api/v1/setups/{sid}/probing-program", params={"dialect": "linuxcnc", "wcs": "G54"})
         assert r.status_code == 200, r.text
         program = r.text
