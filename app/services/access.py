@@ -189,15 +189,20 @@ def end_sessions(session: Session, user_id: int) -> int:
     return len(rows)
 
 
-def disable_user(session: Session, name: str) -> User:
+def _disable(session: Session, user: User) -> User:
     """The user can no longer sign in; open sessions end now. The row stays (audit trail names it)."""
-    user = find_user(session, name)
     if user.disabled_at is None:
         user.disabled_at = utcnow()
         session.add(user)
     end_sessions(session, user.id)
     session.flush()
     return user
+
+
+def disable_user(session: Session, name: str) -> User:
+    """Disable a user by name (the CLI, run by whoever runs the service: no self or last-admin guard,
+    ``setupcam user passwd`` and the database stay with them)."""
+    return _disable(session, find_user(session, name))
 
 
 def set_password(session: Session, name: str, password: str | None = None) -> tuple[User, str]:
@@ -231,12 +236,11 @@ def set_user_disabled(session: Session, user_id: int, disabled: bool, by: str) -
         if user.role == "admin" and not session.exec(select(User).where(
                 User.role == "admin", User.id != user.id, col(User.disabled_at).is_(None))).first():
             raise Conflict(f"{user.name} is the last active admin; make another admin first")
-        user.disabled_at = utcnow()
-        end_sessions(session, user.id)
-    elif not disabled:
+        return _disable(session, user)
+    if not disabled:
         user.disabled_at = None
-    session.add(user)
-    session.flush()
+        session.add(user)
+        session.flush()
     return user
 
 
