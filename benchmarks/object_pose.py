@@ -46,6 +46,7 @@ from app.geometry.model_edges import prepare_model, visible_edge_samples  # noqa
 from app.geometry.transforms import inv, rvec_tvec_to_pose, pose_to_rvec_tvec  # noqa: E402
 from app.synth.scene import SceneObject, look_at_pose, place_on_table, random_intrinsics, render_scene  # noqa: E402
 from app.vision import object_pose as op  # noqa: E402
+from app.vision.object_pose.search import find_starts  # noqa: E402
 from app.vision.localize import marker_labels_table  # noqa: E402
 
 W, H = 1920, 1200
@@ -403,8 +404,9 @@ def calibrate_sigma(n: int, cache: Path, models, work, prepared, known) -> int:
 
 def _coarse_start(eimg, K, dist, T_cam_table, model):
     """Best start of our search + planar fit (shared by the baseline)."""
-    starts = op.search_poses(None, K, dist, T_cam_table, model, edge_image=eimg)
-    return starts[0][0] if starts else None
+    found = find_starts(eimg, np.asarray(K, float), np.zeros(5) if dist is None else np.asarray(dist, float).ravel(),
+                        T_cam_table, model)
+    return None if isinstance(found, str) or not found[0] else found[0][0].T_table_obj
 
 
 def report(rows, two_view, args):

@@ -217,26 +217,3 @@ def test_known_table_edges_are_masked(models, clamped):
     assert isinstance(res, ObjectPose), getattr(res, "reason", "")
     dxy, _, drz = _errors(res.T_table_obj, T_br)
     assert dxy < 0.4 and drz < 0.15
-
-
-def test_contact_prior_holds_the_lowest_point_not_the_centre():
-    """A part tilted by a chip under one edge still touches its support with the other edge: the
-    contact prior measures the lift of its lowest point, so the tilt is not also paid as a lift of
-    its centre (which pulled tilted parts down along the line of sight)."""
-    from app.vision.object_pose import _prior_offsets
-
-    box = trimesh.creation.box((100.0, 60.0, 20.0))
-    T_rest = pose_from_xyz_euler(200.0, 100.0, 10.0, 0.0, 0.0, 0.0)       # flat on z = 0
-    prior = (T_rest, 0.15, np.radians(0.3), np.asarray(box.vertices))
-
-    def about(pivot, deg):
-        P = pose_from_xyz_euler(*pivot, 0.0, 0.0, 0.0)
-        return P @ pose_from_xyz_euler(0.0, 0.0, 0.0, 0.0, deg, 0.0) @ inv(P) @ T_rest
-
-    on_edge = _prior_offsets(about((150.0, 100.0, 0.0), -0.5), prior)        # pivots on its left edge
-    assert abs(on_edge[0]) < 1e-9                                           # lowest point stays down
-    assert on_edge[2] == pytest.approx(-0.5 / 0.3, rel=1e-6)                 # the tilt is paid once
-    about_centre = _prior_offsets(about((200.0, 100.0, 10.0), -0.5), prior)  # one edge sinks in
-    assert about_centre[0] == pytest.approx(-50.0 * np.sin(np.radians(0.5)) / 0.15, rel=1e-3)
-    lifted = _prior_offsets(pose_from_xyz_euler(0.0, 0.0, 0.3, 0.0, 0.0, 0.0) @ T_rest, prior)
-    np.testing.assert_allclose(lifted, [0.3 / 0.15, 0.0, 0.0], atol=1e-9)

@@ -1,0 +1,132 @@
+"""The image side of the engine, prepared once and shared by every candidate model: gamma-decoded
+intensity, Canny edges with their directions, distance map to the nearest edge, and masks for edges
+that known geometry (the table, its printed labels) explains. Pixels are OpenCV's (u right, v down)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from app.geometry.model_edges import PreparedModel, project_points_px, visible_edge_samples
+from app.geometry.transforms import transform_points
+
+
+@dataclass(frozen=True, eq=False)
+class EdgeImage:
+    """An image prepared once for all candidate models.
+
+    linear : (H, W) float32 intensity with the camera's gamma undone (0..1)
+    edges : (H, W) uint8 Canny edge map
+    dist_px : (H, W) float32 distance to the nearest edge pixel
+    nearest : (H, W) int32 index into ``edge_uv`` of that pixel
+    edge_uv : (E, 2) float edge pixel positions (u, v); ``edge_angle`` (E,) gradient direction, rad
+    """
+
+    width: int
+    height: int
+    linear: np.ndarray
+    edges: np.ndarray
+    dist_px: np.ndarray
+    nearest: np.ndarray
+    edge_uv: np.ndarray
+    edge_angle: np.ndarray
+    edge_mag: np.ndarray
+    noise_linear: float
+    cache: dict = field(default_factory=dict)   # per-image intermediate results shared by models
+
+
+def prepare_image(image: np.ndarray, *, gamma: float = 2.2, canny_low: float | None = None,
+                  canny_high: float | None = None, smooth_sigma_px: float = 1.0) -> EdgeImage:
+    """Gamma-decode the image and extract its edges (Canny), their directions and distance map.
+
+    ``canny_low``/``canny_high`` default to 2.5x / 6x the noise of the Sobel magnitude, estimated
+    from the image (median absolute deviation), with floors of 8 and 20 grey levels.
+    """
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.dtype != np.uint8:
+        raise ValueError(f"image must be 8-bit grey or BGR, got dtype {img.dtype}")
+    H, W = img.shape
+    lin = ((img.astype(np.float32) / 255.0) ** float(gamma)).astype(np.float32)
+    sm = cv2.GaussianBlur(img, (0, 0), smooth_sigma_px) if smooth_sigma_px > 0 else img
+    smf = sm.astype(np.float32)
+    gx = cv2.Sobel(smf, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(smf, cv2.CV_32F, 0, 1, ksize=3)
+    mag = np.hypot(gx, gy)
+    # noise: MAD of the difference between the image and its blur (flat areas dominate)
+    resid = img.astype(np.float32) - smf
+    noise = float(1.4826 * np.median(np.abs(resid - np.median(resid)))) + 1e-3
+    sob_noise = noise * 2.0
+    lo = canny_low if canny_low is not None else max(8.0, 2.5 * sob_noise)
+    hi = canny_high if canny_high is not None else max(20.0, 6.0 * sob_noise)
+    gx16 = np.clip(np.round(gx), -32767, 32767).astype(np.int16)
+    gy16 = np.clip(np.round(gy), -32767, 32767).astype(np.int16)
+    edges = cv2.Canny(gx16, gy16, lo, hi, L2gradient=True)
+    noise_lin = float(noise / 255.0 * gamma * 0.5 ** (gamma - 1))  # slope of the decode at mid-grey
+    return _edge_image(lin, edges, np.arctan2(gy, gx), mag, noise_lin)
+
+
+def _edge_image(lin, edges, angle, mag, noise_lin) -> EdgeImage:
+    H, W = edges.shape
+    dist_px, labels = cv2.distanceTransformWithLabels(
+        np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, 5,
+        labelType=cv2.DIST_LABEL_PIXEL)
+    vv, uu = np.nonzero(edges)
+    edge_uv = np.stack([uu, vv], axis=1).astype(float)
+    nearest = (labels.astype(np.int32) - 1) if len(uu) else np.zeros_like(labels, dtype=np.int32)
+    full_angle = angle if angle.shape == edges.shape else None
+    return EdgeImage(width=W, height=H, linear=lin, edges=edges, dist_px=dist_px.astype(np.float32),
+                     nearest=nearest, edge_uv=edge_uv,
+                     edge_angle=full_angle[vv, uu] if full_angle is not None else angle,
+                     edge_mag=mag[vv, uu] if mag.shape == edges.shape else mag, noise_linear=noise_lin,
+                     cache={"angle_full": angle, "mag_full": mag})
+
+
+def mask_known_edges(eimg: EdgeImage, known: list[tuple[PreparedModel, np.ndarray]], K, dist,
+                     width_px: float = 1.5) -> EdgeImage:
+    """A copy of ``eimg`` without the edge pixels that known geometry explains.
+
+    ``known`` holds pairs (prepared model, ``T_cam_model``), typically the table itself (its border,
+    T-slots and marker-free structure) at ``T_cam_table``: corners and steps of the table otherwise
+    look like small workpieces to the search. Edge pixels within ``width_px`` of a visible edge of a
+    known model are removed; the grey image used for the subpixel fit is unchanged.
+    """
+    K = np.asarray(K, float)
+    dist = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
+    mask = np.zeros(eimg.edges.shape, np.uint8)
+    for model, T_cam_model in known:
+        es = visible_edge_samples(model, np.asarray(T_cam_model, float), K, dist, eimg.width, eimg.height,
+                                  max_buffer_px=1200)
+        step = max(1, int(np.ceil(len(es.uv_px) / 400000)))
+        for u, v in np.rint(es.uv_px[::step] * 4).astype(np.int64):
+            cv2.circle(mask, (int(u), int(v)), int(round(width_px * 4)), 255, -1, shift=2)
+    edges = np.where(mask > 0, 0, eimg.edges).astype(np.uint8)
+    return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
+                       eimg.noise_linear)
+
+
+def mask_table_regions(eimg: EdgeImage, regions_table: list, T_cam_table: np.ndarray, K, dist,
+                       dilate_px: float = 2.0) -> EdgeImage:
+    """A copy of ``eimg`` without the edge pixels inside regions of the table (each a polygon (N, 3)
+    in the table frame, mm), typically the printed fiducial labels: their black and white cells are
+    exactly the small squares a small part looks like. A part's own edges crossing such a region
+    are lost there too (a part rarely stands on a marker; it would hide it from the table pose)."""
+    K = np.asarray(K, float)
+    dist = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
+    mask = np.zeros(eimg.edges.shape, np.uint8)
+    for poly in regions_table:
+        P = transform_points(np.asarray(T_cam_table, float), np.asarray(poly, float).reshape(-1, 3))
+        if np.any(P[:, 2] <= 1.0):
+            continue
+        uv = project_points_px(P, K, dist)
+        cv2.fillPoly(mask, [np.rint(uv * 4).astype(np.int32)], 255, lineType=cv2.LINE_8, shift=2)
+    if not mask.any():
+        return eimg
+    r = max(1, int(np.ceil(dilate_px)))
+    mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    edges = np.where(mask > 0, 0, eimg.edges).astype(np.uint8)
+    return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
+                       eimg.noise_linear)

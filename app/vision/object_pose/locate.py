@@ -1,0 +1,538 @@
+"""One part located in one image: the engine's stages in order (see the package's docstring).
+
+:func:`locate_object` reads as its stages; each stage is a function below it. What is shared between
+the stages of one call (the image's edges, the table pose, the occluders, the options) is a
+:class:`LocateContext`; a refined candidate pose is a :class:`Fit`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from app.geometry.model_edges import PreparedModel, project_points_px, visible_edge_samples
+from app.geometry.transforms import check_pose, inv, make_pose, transform_points
+from app.vision.blas_threads import one_blas_thread
+from app.vision.object_pose.datum import choose_datum
+from app.vision.object_pose.edge_image import EdgeImage, mask_known_edges, mask_table_regions, prepare_image
+from app.vision.object_pose.options import LocateOptions
+from app.vision.object_pose.planar_fit import sample_subset
+from app.vision.object_pose.pose_params import FREE_6DOF, perturb3
+from app.vision.object_pose.refine import edge_support, refine_pose
+from app.vision.object_pose.results import ObjectFailure, ObjectPose
+from app.vision.object_pose.search import Hyp, find_starts, settle_start, starts_from_poses, turned_over
+from app.vision.object_pose.uncertainty import (MAX_PRIOR_SIGMAS, SNAP_MM, covariance, hull_points,
+                                                origin_sigma, prior_offsets)
+from app.vision.object_pose.verify import same_up_to_symmetry, unexplained_edges
+
+
+@one_blas_thread
+def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options: LocateOptions | None = None,
+                  occluder_models=(), known_models=(), known_regions=(), edge_image: EdgeImage | None = None,
+                  start_poses=None, known_heights_mm=None, table_extent_xy=None, **option_changes):
+    """Locate one part on the table. Returns :class:`ObjectPose` or :class:`ObjectFailure`.
+
+    Parameters
+    ----------
+    image : (H, W) uint8 grey (or BGR); ignored when ``edge_image`` (from :func:`prepare_image`) is given
+    K : (3, 3), dist : OpenCV intrinsics of the image (4 to 14 coefficients)
+    T_cam_table : (4, 4) pose of the table in the camera frame, mm
+    model : prepared part
+    options : :class:`LocateOptions`; single options may also be given by name (``min_score=0.6``)
+    occluder_models : pairs ``(PreparedModel or trimesh.Trimesh, T_table_occ)`` of objects with known
+        poses (vise, clamps) that may hide parts of the model's edges
+    known_models : pairs ``(PreparedModel, T_table_model)`` of geometry whose edges are not the part,
+        typically the table itself: its border, slots and steps are removed from the edge map
+    known_regions : polygons (N, 3) on the table (table frame, mm) whose edges are not the part, e.g.
+        the printed fiducial labels
+    start_poses : ``T_table_obj`` starts (an operator's adjusted pose, "refine from here") that
+        replace the search; refinement, verification and uncertainty are as usual
+    known_heights_mm : heights (table z) of surfaces known to carry parts (the table, located
+        fixtures' faces); a start at another height (a riser of unknown height) has its height
+        fitted with a broad prior. None: every searched height is known (unless ``free_height``).
+    table_extent_xy : (x0, x1, y0, y1) of the table top (mm, table frame): the part's centre is
+        searched within it, grown by half the part's size; None: wherever image edges meet the plane
+
+    The pose is fitted lying flat (x, y, rotation about the table normal; height on unknown risers),
+    then once more in 6 DoF with the contact prior (maximum a-posteriori): that is the pose returned,
+    with its posterior sigma for all six axes.
+    """
+    opts = (options or LocateOptions()).with_(**option_changes)
+    timings: dict[str, float] = {}
+    t_all = time.perf_counter()
+
+    def fail(kind, reason, best=0.0, cands=()):
+        timings["total"] = (time.perf_counter() - t_all) * 1e3
+        return ObjectFailure(model_name=model.name, kind=kind, reason=reason, best_score=float(best),
+                             candidates=tuple(cands), timings_ms=dict(timings))
+
+    ctx = _context(image, K, dist, T_cam_table, model, opts, occluder_models, known_models, known_regions,
+                   edge_image, known_heights_mm, timings)
+    if isinstance(ctx, tuple):
+        return fail(*ctx)
+    found = _find(ctx, start_poses, table_extent_xy)                       # stages 1 and 2
+    if isinstance(found, str):
+        return fail("not_found", f"{model.name} not found: {found}")
+    hyps, ctx.px_per_mm = found
+    t = time.perf_counter()
+    fits = [ctx.refine_rest(s.T_table_obj, s.state, hyp=h)                   # stage 3
+            for h in _distinct(ctx, hyps) for s in [_settle(ctx, h)]]
+    timings["refine"] = (time.perf_counter() - t) * 1e3
+    if not fits:
+        return fail("not_found", f"{model.name} not found: no start matched any image edges")
+    t = time.perf_counter()                                                # stage 4: verification
+    best, fits, near = _choose(ctx, fits)
+    rivals = _rivals(ctx, best, fits)
+    refusal, distinct_drop = _refusal(ctx, best, rivals)
+    timings["verify"] = (time.perf_counter() - t) * 1e3
+    if refusal is not None:
+        return fail(*refusal, best.score, [{"T_table_obj": f.T.tolist(), "score": round(f.score, 4)} for f in fits])
+    contact = _contact_fit(ctx, best, fits)                                # 6 DoF with the contact prior
+    pose = _result(ctx, contact, rivals, near, distinct_drop)
+    timings["verify"] = (time.perf_counter() - t) * 1e3
+    timings["total"] = (time.perf_counter() - t_all) * 1e3
+    return replace(pose, timings_ms=dict(timings))
+
+
+# --------------------------------------------------------------------------------------------------
+# what the stages share
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(eq=False)
+class Fit:
+    """A candidate pose after the fine fit (stage 3): its verification score (share of the visible
+    model edge samples with an image edge within 1.5 px), the supported edge length (px) and the
+    least-squares state (``info``: empty or with ``failed`` when the fit did not converge)."""
+
+    state: int
+    T: np.ndarray
+    info: dict
+    score: float
+    es: object
+    sup: np.ndarray
+    support_px: float
+    hyp: Hyp | None = None
+
+    @property
+    def key(self) -> float:
+        """Rank: share of the model's edges supported, weighted by how much image evidence that is
+        (a simpler hypothesis, e.g. the part upside down with its pocket hidden, explains less)."""
+        return self.score * np.sqrt(self.support_px)
+
+    @property
+    def converged(self) -> bool:
+        return "sol" in self.info
+
+
+@dataclass(eq=False)
+class LocateContext:
+    """Everything fixed during one :func:`locate_object` call (image, camera, table, model, options)."""
+
+    eimg: EdgeImage
+    K: np.ndarray
+    dist: np.ndarray
+    T_cam_table: np.ndarray
+    model: PreparedModel
+    opts: LocateOptions
+    occluders_cam: tuple
+    known_heights_mm: tuple | None
+    timings: dict
+    min_contrast: float
+    hull_obj: np.ndarray
+    px_per_mm: float = 1.0
+    _sub_fine: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def pos_tol(self) -> float:
+        """Poses closer than this (mm, and 4 deg) are the same place."""
+        return max(2.0, 0.04 * self.model.diameter_mm)
+
+    @property
+    def sub_fine(self) -> np.ndarray:
+        if self._sub_fine is None:
+            self._sub_fine = sample_subset(self.model, self.px_per_mm, 2.5, 1500)
+        return self._sub_fine
+
+    def lowest_z(self, T: np.ndarray) -> float:
+        return float(transform_points(T, self.model.mesh.vertices)[:, 2].min())
+
+    def on_known_surface(self, T: np.ndarray) -> bool:
+        if self.known_heights_mm is None:    # every searched height is a known surface, unless told to fit it
+            return not self.opts.free_height
+        z0 = self.lowest_z(T)
+        return any(abs(z0 - h) < 0.5 for h in self.known_heights_mm)
+
+    def refine(self, T0, free, radii, **kw):
+        return refine_pose(self.eimg, self.model, T0, self.T_cam_table, self.K, self.dist, self.occluders_cam,
+                           self.sub_fine, free=free, radii=radii, min_contrast=self.min_contrast, **kw)
+
+    def support(self, T):
+        return edge_support(self.eimg, self.model, T, self.T_cam_table, self.K, self.dist, self.occluders_cam,
+                            self.sub_fine, min_contrast=self.min_contrast)
+
+    def refine_rest(self, T0, state: int, radii=(5.0, 3.0, 2.0, 2.0), hyp: Hyp | None = None) -> Fit:
+        """Fine fit of a start lying flat in resting state ``state`` (x, y, rotation about the table
+        normal; the height too on a riser of unknown height), then verified."""
+        model = self.model
+        rs_axis = inv(model.resting_states[state].T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        free = (0, 1, 2, 5) if self.opts.free_height and not self.on_known_surface(T0) else (0, 1, 5)
+        if model.continuous_axis_obj is not None and abs(float(rs_axis @ model.continuous_axis_obj)) > 0.999:
+            free = free[:-1]          # round part standing on its face: its spin is not observable
+        T, info = self.refine(T0, free, radii)
+        if 2 in free and self.known_heights_mm is not None:
+            # a height fitted freely that ends near a known surface, or under it (impossible), is that
+            # surface: the image alone slides the part along the line of sight
+            z0 = self.lowest_z(T)
+            near = [h for h in self.known_heights_mm
+                    if z0 - SNAP_MM < h < z0 + SNAP_MM or (h > z0 and h - z0 < 3 * SNAP_MM)]
+            if near:
+                h = min(near, key=lambda h: abs(h - z0))
+                T = make_pose(None, [0.0, 0.0, h - z0]) @ T
+                T, info = self.refine(T, tuple(f for f in free if f != 2), radii[-2:])
+        score, es, sup = self.support(T)
+        spacing = float(np.median(np.linalg.norm(np.diff(es.uv_px, axis=0), axis=1))) if len(es.index) > 2 else 0.0
+        support_px = float(np.count_nonzero(sup)) * min(spacing, 10.0)
+        return Fit(state=state, T=T, info=info, score=score, es=es, sup=sup, support_px=support_px, hyp=hyp)
+
+
+def _context(image, K, dist, T_cam_table, model, opts, occluder_models, known_models, known_regions,
+             edge_image, known_heights_mm, timings):
+    """The image prepared (edges of known geometry removed) and the call's fixed inputs checked;
+    or ``(kind, reason)`` of a failure."""
+    K = np.asarray(K, dtype=float)
+    dist = np.zeros(5) if dist is None else np.asarray(dist, dtype=float).ravel()
+    T_cam_table = check_pose(T_cam_table, "T_cam_table")
+    t = time.perf_counter()
+    eimg = edge_image if edge_image is not None else prepare_image(image, gamma=opts.gamma)
+    if known_models:
+        eimg = mask_known_edges(eimg, [(m, T_cam_table @ np.asarray(T, float)) for m, T in known_models], K, dist)
+    if len(known_regions):
+        eimg = mask_table_regions(eimg, known_regions, T_cam_table, K, dist)
+    timings["edges"] = (time.perf_counter() - t) * 1e3
+    if len(eimg.edge_uv) < 20:
+        return ("not_found", f"{model.name} not found: the image has almost no edges "
+                             f"({len(eimg.edge_uv)} edge pixels); check exposure and focus")
+    C = inv(T_cam_table)[:3, 3]
+    if C[2] <= 0:
+        return ("bad_input", "the camera is below the table plane according to T_cam_table "
+                             f"(camera height {C[2]:.0f} mm); check the table pose")
+    return LocateContext(
+        eimg=eimg, K=K, dist=dist, T_cam_table=T_cam_table, model=model, opts=opts,
+        occluders_cam=tuple((m, T_cam_table @ np.asarray(T, float)) for m, T in occluder_models),
+        known_heights_mm=None if known_heights_mm is None else tuple(known_heights_mm), timings=timings,
+        min_contrast=max(0.01, 6.0 * eimg.noise_linear), hull_obj=hull_points(model))
+
+
+# --------------------------------------------------------------------------------------------------
+# stages 1 to 3: starts, and the best distinct ones refined
+# --------------------------------------------------------------------------------------------------
+
+
+def _find(ctx: LocateContext, start_poses, table_extent_xy):
+    """Starts aligned in the table plane, best first, and the image scale (px per mm); or the reason."""
+    if start_poses is not None:
+        return starts_from_poses(ctx.model, start_poses, ctx.T_cam_table, ctx.K, ctx.dist, ctx.eimg)
+    o, half = ctx.opts, 0.5 * ctx.model.diameter_mm
+    extent = None if table_extent_xy is None else (table_extent_xy[0] - half, table_extent_xy[1] + half,
+                                                   table_extent_xy[2] - half, table_extent_xy[3] + half)
+    return find_starts(ctx.eimg, ctx.K, ctx.dist, ctx.T_cam_table, ctx.model, height_offsets_mm=o.height_offsets_mm,
+                       resting_states=o.resting_states, n_starts=o.n_starts, n_planar=o.n_planar,
+                       max_edges=o.max_edges, rng=np.random.default_rng(o.seed), timings=ctx.timings,
+                       table_extent_xy=extent)
+
+
+def _distinct(ctx: LocateContext, hyps: list[Hyp]) -> list[Hyp]:
+    """The best ``n_refine`` starts that are different places (near-symmetric alternatives, e.g.
+    the part upside down, count as different and compete)."""
+    distinct: list[Hyp] = []
+    for h in hyps:
+        if h.score <= 0:
+            continue
+        if any(same_up_to_symmetry(ctx.model, h.T_table_obj, d.T_table_obj, ctx.pos_tol, 4.0, exact_only=True)
+               for d in distinct):
+            continue
+        distinct.append(h)
+        if len(distinct) >= ctx.opts.n_refine:
+            break
+    return distinct
+
+
+def _settle(ctx: LocateContext, h: Hyp) -> Hyp:
+    """The start searched once more around itself (x, y within 0.06 x the part's size, at least
+    5 mm; rotation within 4 deg) and aligned. The plane search leaves a big part's start up to a
+    coarse cell and a few degrees off, and from there the fine fit, which looks a few pixels along
+    each edge normal, does not come back (a vise 6 mm and 2.7 deg off its true pose converged on its
+    own jaw's edges instead)."""
+    if not ctx.opts.settle_starts:
+        return h
+    return settle_start(ctx.model, h, ctx.T_cam_table, ctx.K, ctx.dist, ctx.eimg,
+                        capture_mm=max(5.0, 0.06 * ctx.model.diameter_mm), capture_deg=4.0)
+
+
+# --------------------------------------------------------------------------------------------------
+# stage 4: which pose, is it distinct, does it rest where it says, how sure
+# --------------------------------------------------------------------------------------------------
+
+
+def _choose(ctx: LocateContext, fits: list[Fit]) -> tuple[Fit, list[Fit], list]:
+    """The best fit after trying it turned over and turned by its near symmetries, polished.
+    Returns (best, all fits with best first when turned-over poses joined, near-symmetry scores)."""
+    model, min_score = ctx.model, ctx.opts.min_score
+    fits = sorted(fits, key=lambda r: -r.key)
+    best = fits[0]
+    # the part turned over about one of its horizontal axes has the same outline when the outline is
+    # symmetric (a plate with a pocket on top: upside down it is a plain rectangle that supports a high
+    # share of its few edges); the search may offer only one of the two: refine the other as well
+    # (the flip moves the part by a few mm when its outline is not centred on its mass: aligned in the
+    # plane first). Explaining clearly more of the image (25 % more supported edge length) at an
+    # acceptable score wins even at a lower share: the pocket's walls are rarely all supported.
+    upright_only = len(model.resting_states) == 1 and model.resting_states[0].cad_axis == "+z"
+    if best.converged and not upright_only:      # a fixture never lies upside down
+        for T_alt in turned_over(model, best.T):
+            found_alt = starts_from_poses(model, [T_alt], ctx.T_cam_table, ctx.K, ctx.dist, ctx.eimg,
+                                          capture_mm=max(5.0, 0.06 * model.diameter_mm), capture_deg=2.0, n_peaks=1)
+            if isinstance(found_alt, str):
+                continue
+            h = found_alt[0][0]
+            alt = ctx.refine_rest(h.T_table_obj, h.state, hyp=h)
+            if alt.converged:
+                fits.append(alt)
+                if alt.score >= min_score and alt.support_px >= 1.25 * best.support_px:
+                    best = alt
+        fits.sort(key=lambda r: (r is not best, -r.key))
+    # near symmetries (outline maps, small features do not): try the turned poses, keep the best
+    # (only turns about the table normal: a near-symmetric flip puts the part on another face, which
+    # the search covers as its own resting state, at its own height)
+    near = [s for s in model.symmetries if not s.exact and abs(float((best.T[:3, :3] @ s.axis_obj)[2])) > 0.99]
+    sym_scores = []
+    if near and best.converged:
+        base = best
+        for s in near:
+            alt = ctx.refine_rest(base.T @ s.S, base.state, radii=(2.0, 2.0), hyp=base.hyp)
+            sym_scores.append((s, alt.score))
+            if alt.key > best.key:
+                best = alt
+    if best.converged:          # polish the chosen pose with a narrow search
+        pol = ctx.refine_rest(best.T, best.state, radii=(2.0, 1.5, 1.5), hyp=best.hyp)
+        if pol.converged and pol.key >= best.key * 0.98:
+            fits = [pol if r is best else r for r in fits]
+            best = pol
+    return best, fits, sym_scores
+
+
+@dataclass
+class Rivals:
+    """How the best pose stands against the others: ``flips`` (the part turned over onto another face
+    by a near symmetry: a datum question), ``rivals`` (different places that explain about as much),
+    ``runner`` (best score of any different pose) and the margins."""
+
+    flips: list
+    flips_open: list
+    rivals: list
+    runner: float
+    margin: float
+    rival_margin: float
+    flip_runner: float
+
+
+def _rivals(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Rivals:
+    model, tol, min_margin = ctx.model, ctx.pos_tol, ctx.opts.min_margin
+    # the part turned over onto another face by a near symmetry (same outline, e.g. a counterbore
+    # underneath) is not a different place: it is a question of the datum
+    flips = [r for r in fits if r is not best and
+             not same_up_to_symmetry(model, r.T, best.T, tol, 4.0, exact_only=True) and
+             same_up_to_symmetry(model, r.T, best.T, tol, 4.0)]
+    # a different pose competes only if it explains about as much of the image (a part upside down
+    # with its pocket hidden is a plain outline: a high share of fewer edges is not a rival)
+    others = [r for r in fits if r is not best and all(r is not f for f in flips) and
+              not same_up_to_symmetry(model, r.T, best.T, tol, 4.0, exact_only=True)]
+    runner = max((r.score for r in others), default=float("nan"))
+    rivals = [r for r in others if r.support_px >= 0.8 * best.support_px]
+    if rivals and best.converged:
+        # nor is a pose that leaves clearly more of the image inside its outline unexplained (the
+        # block upside down: same outline, its pocket's edges in the picture belong to nothing)
+        u_best = unexplained_edges(ctx.eimg, model, ctx.T_cam_table @ best.T, ctx.K, ctx.dist)
+        rivals = [r for r in rivals
+                  if unexplained_edges(ctx.eimg, model, ctx.T_cam_table @ r.T, ctx.K, ctx.dist) < u_best + 0.1]
+    return Rivals(flips=flips, flips_open=[r for r in flips if best.score - r.score < 2 * min_margin],
+                  rivals=rivals, runner=runner, margin=best.score - runner if others else float("nan"),
+                  rival_margin=best.score - max((r.score for r in rivals), default=float("nan")),
+                  flip_runner=max((r.score for r in flips), default=float("nan")))
+
+
+def _refusal(ctx: LocateContext, best: Fit, rv: Rivals) -> tuple[tuple[str, str] | None, float]:
+    """``(kind, reason)`` when the best pose is not good enough to return, else None; and the
+    pose's distinctiveness (NaN where not reached)."""
+    o, name = ctx.opts, ctx.model.name
+    if not best.converged:
+        return ("not_found", f"{name} not found: {best.info.get('failed', 'the fit did not converge')}"), float("nan")
+    if best.score < o.min_score:
+        return ("not_found", f"{name} not found: the best fit supports only {best.score:.0%} of its visible "
+                             f"edges (need {o.min_score:.0%}); the part may be hidden, outside the image or a "
+                             f"different model"), float("nan")
+    drop, weakest = _distinctiveness(ctx, best)
+    if weakest:
+        return ("not_found", f"{name} not found: the best fit ({best.score:.0%} of its visible edges) is not "
+                             f"distinct: moved a few pixels in {weakest} it still fits {best.score - drop:.0%} "
+                             f"(need a drop of {o.min_distinctiveness:.0%}); it lies on straight edges or "
+                             f"texture, not on the part"), drop
+    if rv.rivals and rv.rival_margin < o.min_margin:
+        return ("ambiguous", f"{name} ambiguous: two different poses fit almost equally well "
+                             f"({best.score:.0%} and {best.score - rv.rival_margin:.0%} of the visible edges, margin "
+                             f"{rv.rival_margin:.0%} < {o.min_margin:.0%}); take another view or give the pose roughly"), drop
+    return None, drop
+
+
+def _distinctiveness(ctx: LocateContext, best: Fit) -> tuple[float, str]:
+    """Least drop of the support when the pose is moved by 4 px in x, y or turned as much (the
+    better direction of each), and the first direction that does not drop enough ("" if none).
+    A fit along one straight edge or onto texture does not drop."""
+    model, o = ctx.model, ctx.opts
+    shift_mm = 4.0 / ctx.px_per_mm
+    c_tab = transform_points(best.T, model.center_obj[None])[0]
+    # turned by as much as moves a typical edge point (mean distance from the centre) by those pixels
+    r_mean = float(np.mean(np.linalg.norm(model.samples_obj - model.center_obj, axis=1)))
+    dth = shift_mm / max(r_mean, 1.0)
+    drops, owed = {}, {}
+    es_b, sup_b = best.es, best.sup
+    for key, q in (("x", (shift_mm, 0, 0)), ("-x", (-shift_mm, 0, 0)), ("y", (0, shift_mm, 0)),
+                   ("-y", (0, -shift_mm, 0)), ("rz", (0, 0, dth)), ("-rz", (0, 0, -dth))):
+        if model.continuous_axis_obj is not None and key.endswith("rz"):
+            continue
+        T_q = perturb3(best.T, c_tab, np.array(q, float))
+        sc, _, _ = ctx.support(T_q)
+        drops[key] = best.score - sc
+        # the drop the part's own geometry owes: supported samples that the move carries off their
+        # edge (a round outline turned, a long edge slid along itself, owe nothing)
+        if len(es_b.index):
+            uv_q = project_points_px(transform_points(ctx.T_cam_table @ T_q, es_b.points_obj), ctx.K, ctx.dist)
+            moved = np.abs(np.einsum("ij,ij->i", uv_q - es_b.uv_px, es_b.normal_uv)) > 1.5
+            owed[key] = float(np.count_nonzero(moved & sup_b)) / len(es_b.index)
+    pairs, weakest = [], ""
+    for (a, b), label in zip((("x", "-x"), ("y", "-y"), ("rz", "-rz")), ("x", "y", "rotation")):
+        k = a if drops.get(a, 1.0) >= drops.get(b, 1.0) else b
+        d = drops.get(k, 1.0)
+        pairs.append(d)
+        # distinct: a clear drop, or (where the geometry owes less than twice that) at least half
+        # of what it owes: a flange's holes are all that turning it moves
+        need = min(o.min_distinctiveness, 0.5 * owed.get(k, 1.0)) if k.endswith("rz") else o.min_distinctiveness
+        if d < max(need, 0.02) and not weakest:
+            weakest = label
+    return float(min(pairs)), weakest
+
+
+@dataclass
+class ContactFit:
+    """The chosen flat fit, its 6-DoF fit with the contact prior, and whether the two disagree."""
+
+    best: Fit
+    T6: np.ndarray
+    info6: dict
+    prior: tuple
+    conflict: bool
+
+
+def _contact_fit(ctx: LocateContext, best: Fit, fits: list[Fit]) -> ContactFit:
+    """Residual tilt and height: the free 6-DoF fit from the flat result with the contact prior."""
+    o, model = ctx.opts, ctx.model
+
+    def fit6(r: Fit) -> ContactFit:
+        ra = None if model.continuous_axis_obj is None else r.T[:3, :3] @ model.continuous_axis_obj
+        pr = (r.T, o.contact_sigma_mm if ctx.on_known_surface(r.T) else o.riser_sigma_mm,
+              np.radians(o.contact_sigma_deg), ctx.hull_obj)
+        T6, info6 = ctx.refine(r.T, FREE_6DOF, (2.0, 2.0), round_axis_table=ra, prior=pr)
+        conflict = "sol" in info6 and np.max(np.abs(prior_offsets(T6, pr))) > MAX_PRIOR_SIGMAS
+        return ContactFit(best=r, T6=T6, info6=info6, prior=pr, conflict=bool(conflict))
+
+    cf = fit6(best)
+    if cf.conflict:
+        # the best flat fit does not rest where it says (e.g. on a vise's seat where the part in fact
+        # stands 20 mm higher on parallels and, seen from afar, looks nearly the same): a rival of
+        # about the same score that does rest as it says is the better reading
+        for r in sorted(fits, key=lambda r: -r.key):
+            if r is best or not r.converged or r.score < best.score - o.min_margin:
+                continue
+            alt = fit6(r)
+            if "sol" in alt.info6 and not alt.conflict:
+                return alt
+    return cf
+
+
+def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, distinct_drop: float) -> ObjectPose:
+    """The located part: the 6-DoF pose (or the flat one where height and tilt are not known), its
+    sigma, tilt, datum and flags."""
+    model, o, K, dist = ctx.model, ctx.opts, ctx.K, ctx.dist
+    best, T6, info6 = cf.best, cf.T6, cf.info6
+    st = best.state
+    n_rest = inv(model.resting_states[st].T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    up = T6[:3, :3] @ n_rest
+    tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+    flags = []
+    tilt_sigma = float("nan")
+    cov6_full = None
+    if "sol" in info6:
+        cov6_full = covariance(info6, K, dist, ctx.T_cam_table, data_scale=o.sigma_scale)
+        tilt_sigma = float(np.degrees(np.sqrt(max(cov6_full[0][3, 3] + cov6_full[0][4, 4], 0.0))))
+    if "sol" in info6 and tilt > o.max_tilt_deg and tilt > 3.0 * tilt_sigma:
+        flags.append("tilt")          # the free fit says: not lying flat
+    # The pose returned is the 6-DoF fit with the contact prior (maximum a-posteriori): where the
+    # image cannot tell height and tilt, the contact holds them; where it can (a chip under an edge),
+    # the image wins. Its covariance is the posterior, so the stated sigma covers all six axes.
+    T_table_obj, info = (T6, info6) if "sol" in info6 else (best.T, best.info)
+    if cf.conflict:
+        # the image pulls the part far off the surface it should rest on (or tilts it by degrees):
+        # either it does not rest as assumed or the fit is caught on other edges; keep the flat
+        # pose and say that its height and tilt are not known
+        flags.append("contact")
+        T_table_obj, info = best.T, best.info
+    # of the poses that look exactly the same, give the most upright one (the part's CAD z up, as a
+    # 3-axis work offset needs it); which of them is meant stays the operator's choice
+    S_up = max([np.eye(4)] + [s.S for s in model.symmetries if s.exact],
+               key=lambda S: round(float((T_table_obj @ S)[2, 2]), 6))
+    T_table_obj, T6 = T_table_obj @ S_up, T6 @ S_up
+    # the 6-DoF posterior is already at hand unless the flat fit stands in for it
+    cov, inl, rms = cov6_full if info is info6 else covariance(info, K, dist, ctx.T_cam_table, data_scale=o.sigma_scale)
+    cov_o, sigma = origin_sigma(cov, T_table_obj, model)
+    if "sol" not in info6 or cf.conflict:     # height and tilt not measured, only assumed
+        sigma.update(z_mm=float("nan"), rx_deg=float("nan"), ry_deg=float("nan"))
+    # the spin of a round part about its own axis is not seen: undetermined, a datum question
+    spin_free = set()
+    if model.continuous_axis_obj is not None:
+        ax = np.abs(T_table_obj[:3, :3] @ model.continuous_axis_obj)
+        spin_free = {key for k, key in enumerate(("rx_deg", "ry_deg", "rz_deg")) if ax[k] > 0.9}
+    for key in spin_free:
+        sigma[key] = float("nan")
+    datum = choose_datum(model, T_table_obj, best.score, sym_scores, rv.flips, rv.flips_open, rv.flip_runner,
+                         o.min_margin)
+    if datum.ambiguous:
+        flags.append("datum_ambiguous")
+    # an axis whose sigma is unknown fails (NaN compares false); only the spin of a round part about
+    # its own axis is exempt: it is a datum question, not an uncertainty
+    uncertainty_ok = bool(all(sigma[k] <= o.max_sigma_mm for k in ("x_mm", "y_mm", "z_mm")) and
+                          all(sigma[k] <= o.max_sigma_deg for k in ("rx_deg", "ry_deg", "rz_deg") if k not in spin_free))
+    if not uncertainty_ok:
+        flags.append("uncertainty")
+    n_vis = len(best.es.index)
+    if n_vis < 60:
+        flags.append("few_edges")
+    vis_frac = 1.0
+    W, H = ctx.eimg.width, ctx.eimg.height
+    if ctx.occluders_cam:
+        es_free = visible_edge_samples(model, ctx.T_cam_table @ T_table_obj, K, dist, W, H, occlusion_test=True,
+                                       subset=ctx.sub_fine)
+        vis_frac = n_vis / max(len(es_free.index), 1)
+    height = float(transform_points(T_table_obj @ inv(model.resting_states[st].T_rest_obj), np.zeros((1, 3)))[0, 2])
+    return ObjectPose(
+        model_name=model.name, T_cam_obj=ctx.T_cam_table @ T_table_obj, T_table_obj=T_table_obj, resting_state=st,
+        score=float(best.score), inlier_edge_fraction=min(1.0, float(inl.sum()) / max(n_vis, 1)), residual_px=rms,
+        visible_fraction=float(vis_frac), n_edge_samples=int(info["n_used"]), sigma=sigma, tilt_deg=tilt,
+        tilt_sigma_deg=tilt_sigma, T_table_obj_6dof=T6,
+        unexplained_fraction=unexplained_edges(ctx.eimg, model, ctx.T_cam_table @ T_table_obj, K, dist),
+        supported_edge_px=best.support_px, uncertainty_ok=uncertainty_ok, height_offset_mm=height,
+        margin=float(rv.margin), runner_up_score=float(rv.runner),
+        distinctiveness=distinct_drop, covariance=cov_o,
+        equivalent_poses=datum.equivalent, datum_ambiguous=datum.ambiguous, datum_note=datum.note,
+        flags=tuple(flags), timings_ms=dict(ctx.timings))

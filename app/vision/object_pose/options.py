@@ -1,0 +1,77 @@
+"""The engine's settings for one search, as one frozen object (what is searched and what is accepted).
+
+What belongs to the scene (the image, the table pose, located fixtures, known surfaces) is passed to
+:func:`app.vision.object_pose.locate_object` beside it; what says *how* to search and *when* to accept
+lives here, so that a caller changes one value without restating twenty.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+from app.vision.object_pose.uncertainty import (CONTACT_SIGMA_DEG, CONTACT_SIGMA_MM, RISER_SIGMA_MM,
+                                                SIGMA_SCALE)
+
+
+@dataclass(frozen=True)
+class LocateOptions:
+    """How to search for a part and when to accept it.
+
+    gamma : the camera's encoding gamma (intensities are decoded as ``(I/255) ** gamma``)
+    height_offsets_mm : heights above the table to search (mm); an entry may be ``(height, (x0, x1,
+        y0, y1))`` to search that height only over part of the table (a fixture's face)
+    free_height : fit the height above the table too (parts on risers of unknown height)
+    resting_states : indices into ``model.resting_states`` to try (None: the distinct states with a
+        probability of at least 0.1, the likeliest and the CAD z-up/z-down stances)
+    min_score : least share of visible model edges supported by image edges to accept
+    min_margin : least score difference to the best different pose
+    min_distinctiveness : least drop of the score when the fitted pose is moved by 4 px along x, y or
+        turned as much (fits onto a single straight edge or onto texture do not drop and are refused)
+    max_tilt_deg : residual tilt above which (and above 3 sigma) the result carries the "tilt" flag
+    max_sigma_mm, max_sigma_deg : tolerances on the 1-sigma uncertainty (``uncertainty_ok``)
+    n_starts : search peaks per resting state and height; ``n_planar`` : best of those aligned in the
+        table plane; ``n_refine`` : distinct aligned starts refined and verified
+    settle_starts : search each start once more densely around itself before the fine fit
+    max_edges : image edge pixels cast onto the search planes (a random subset beyond)
+    sigma_scale : factor on the image's share of the covariance (calibrated on held-out scenes)
+    seed : of the edge subset (results are reproducible)
+    contact_sigma_mm, contact_sigma_deg : how far a part on a known surface may sit above it or tilt
+        (a chip, a burr, a strap pressing one side); ``riser_sigma_mm`` : the prior on the height
+        above a riser of unknown height
+    """
+
+    gamma: float = 2.2
+    height_offsets_mm: tuple = (0.0,)
+    free_height: bool = False
+    resting_states: tuple | None = None
+    min_score: float = 0.5
+    min_margin: float = 0.1
+    min_distinctiveness: float = 0.1
+    max_tilt_deg: float = 0.5
+    max_sigma_mm: float = 0.2
+    max_sigma_deg: float = 0.1
+    n_starts: int = 6
+    n_planar: int = 10
+    n_refine: int = 3
+    settle_starts: bool = False
+    max_edges: int = 60000
+    sigma_scale: float = SIGMA_SCALE
+    seed: int = 0
+    contact_sigma_mm: float = CONTACT_SIGMA_MM
+    contact_sigma_deg: float = CONTACT_SIGMA_DEG
+    riser_sigma_mm: float = RISER_SIGMA_MM
+
+    def with_(self, **changes) -> LocateOptions:
+        """A copy with ``changes``; an unknown name is a ``TypeError`` that names the known ones."""
+        known = {f.name for f in fields(self)}
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise TypeError(f"unknown locate option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+        if "height_offsets_mm" in changes:
+            changes["height_offsets_mm"] = tuple(changes["height_offsets_mm"])
+        if changes.get("resting_states") is not None:
+            changes["resting_states"] = tuple(changes["resting_states"])
+        return replace(self, **changes)
+
+
+OPTION_NAMES = frozenset(f.name for f in fields(LocateOptions))

@@ -1,0 +1,103 @@
+"""Which of several library models are in the image: the coarse stages for all, the full
+:func:`~app.vision.object_pose.locate.locate_object` for the best few, then accepted by score, margin
+and how much of the image each explains at the same place."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from app.geometry.model_edges import PreparedModel
+from app.geometry.transforms import check_pose, transform_points
+from app.vision.blas_threads import one_blas_thread
+from app.vision.object_pose.edge_image import mask_known_edges, mask_table_regions, prepare_image
+from app.vision.object_pose.locate import locate_object
+from app.vision.object_pose.results import ObjectFailure, ObjectPose, Recognition
+from app.vision.object_pose.search import find_starts
+
+
+@one_blas_thread
+def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, min_score: float = 0.6,
+              min_margin: float = 0.1, gamma: float = 2.2, n_full: int = 4, **locate_kw) -> Recognition:
+    """Which of ``candidates`` are in the image?
+
+    Every candidate goes through the search and the planar fit (stages 1 and 2 of
+    :func:`locate_object`); the ``n_full`` best by that coarse score are located completely and
+    ranked by their verification score, the others keep their coarse score ("coarse only").
+    A candidate is accepted when its score reaches ``min_score`` and no other candidate at the same
+    place (centres closer than half the larger diameter) explains clearly more image edges
+    (``supported_edge_px`` 25 % higher) or, explaining about as much, scores within ``min_margin``.
+    Different objects at different places can all be accepted (a workpiece and its clamps).
+    Nothing accepted: ``reason`` starts with "not recognised:" and names the top candidates.
+    """
+    t0 = time.perf_counter()
+    K = np.asarray(K, dtype=float)
+    dist = np.zeros(5) if dist is None else np.asarray(dist, dtype=float).ravel()
+    T_cam_table = check_pose(T_cam_table, "T_cam_table")
+    eimg = prepare_image(image, gamma=gamma)
+    known = locate_kw.pop("known_models", ())
+    if known:
+        eimg = mask_known_edges(eimg, [(m, T_cam_table @ np.asarray(T, float)) for m, T in known], K, dist)
+    regions = locate_kw.pop("known_regions", ())
+    if len(regions):
+        eimg = mask_table_regions(eimg, regions, T_cam_table, K, dist)
+    search_kw = {k: locate_kw[k] for k in ("height_offsets_mm", "resting_states", "n_starts", "n_planar")
+                 if k in locate_kw}
+    coarse = []
+    for m in candidates:
+        found = find_starts(eimg, K, dist, T_cam_table, m, **search_kw)
+        coarse.append(0.0 if isinstance(found, str) or not found[0] else float(found[0][0].score))
+    order = np.argsort(-np.asarray(coarse), kind="stable")
+    res = []
+    for rank, i in enumerate(order):
+        m = candidates[i]
+        if rank < n_full:
+            r = locate_object(None, K, dist, T_cam_table, m, edge_image=eimg, min_score=0.0, min_margin=0.0,
+                              **locate_kw)
+        else:
+            r = ObjectFailure(model_name=m.name, kind="not_found", reason="coarse only", best_score=coarse[i],
+                              candidates=(), timings_ms={})
+        res.append((m, r))
+
+    def score(r):
+        return r.score if isinstance(r, ObjectPose) else r.best_score
+
+    res.sort(key=lambda mr: -score(mr[1]))
+    accepted = []
+    ranked = []
+    for i, (m, r) in enumerate(res):
+        ok = isinstance(r, ObjectPose) and r.score >= min_score
+        reason = ""
+        if isinstance(r, ObjectPose) and not ok:
+            reason = f"score {r.score:.0%} below {min_score:.0%}"
+        elif isinstance(r, ObjectPose):
+            c_i = transform_points(r.T_table_obj, m.center_obj[None])[0]
+            for j, (m2, r2) in enumerate(res):
+                if j == i or not isinstance(r2, ObjectPose) or r2.score < min_score:
+                    continue
+                c_j = transform_points(r2.T_table_obj, m2.center_obj[None])[0]
+                if np.linalg.norm(c_i[:2] - c_j[:2]) >= 0.5 * max(m.diameter_mm, m2.diameter_mm):
+                    continue            # different places: both may be there (workpiece and clamp)
+                if r2.supported_edge_px > 1.25 * r.supported_edge_px:
+                    ok = False          # e.g. a small block fitted into a bigger part's edges
+                    reason = (f"{m2.name} explains more of the image at the same place "
+                              f"({r2.supported_edge_px:.0f} px of edges vs {r.supported_edge_px:.0f} px)")
+                    break
+                if r.supported_edge_px <= 1.25 * r2.supported_edge_px and r.score - r2.score < min_margin:
+                    ok = False
+                    reason = (f"{m2.name} fits the same place almost as well "
+                              f"({r.score:.0%} vs {r2.score:.0%})")
+                    break
+        else:
+            reason = r.reason
+        ranked.append({"model": m.name, "score": round(float(score(r)), 4), "ok": bool(ok), "reason": reason})
+        if ok:
+            accepted.append(r)
+    ranked.sort(key=lambda d: (not d["ok"], -d["score"]))
+    reason = ""
+    if not accepted:
+        top = ", ".join(f"{d['model']} {d['score']:.0%}" for d in ranked[:3])
+        reason = f"not recognised: no candidate reached {min_score:.0%} with a margin of {min_margin:.0%} (top: {top})"
+    return Recognition(accepted=tuple(accepted), ranked=tuple(ranked), reason=reason,
+                       timings_ms={"total": (time.perf_counter() - t0) * 1e3})

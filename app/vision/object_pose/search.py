@@ -1,0 +1,551 @@
+"""Stages 1 and 2: where might the part be? Starts for the fine fit.
+
+Every image edge pixel is cast onto the horizontal planes at the heights of the model's horizontal
+edges (exact for any perspective); on such a plane the model's edges form a rigid template whose
+oriented chamfer correlation with the plane's edge support is computed for every (x, y, theta) in
+the frequency domain (in the spirit of the generalised Hough transform: Ballard 1981, "Generalizing
+the Hough transform to detect arbitrary shapes", Pattern Recognition 13(2)); the best cells are
+re-scored in the image with exact perspective and aligned in the table plane (:mod:`.planar_fit`).
+Units: mm and rad in the table frame; pixels in the image.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import fft as sfft
+from scipy import ndimage
+from scipy.spatial.transform import Rotation
+
+from app.geometry.model_edges import PreparedModel, project_points_px
+from app.geometry.transforms import check_pose, inv, make_pose, transform_points
+from app.vision.object_pose.edge_image import EdgeImage
+from app.vision.object_pose.planar_fit import planar_fit, sample_subset
+
+
+@dataclass
+class Hyp:
+    state: int
+    T_table_obj: np.ndarray
+    votes: float = 0.0
+    score: float = 0.0
+    height_mm: float = 0.0
+    refined: dict | None = None
+
+
+def _edge_rays_table(eimg: EdgeImage, K, dist, T_table_cam, max_edges: int, rng):
+    """Subsampled edge pixels as rays in the table frame, plus rays one px along the edge."""
+    n = len(eimg.edge_uv)
+    if n == 0:
+        return None
+    idx = np.arange(n) if n <= max_edges else np.sort(rng.choice(n, max_edges, replace=False))
+    uv = eimg.edge_uv[idx]
+    ang = eimg.edge_angle[idx]
+    tang = np.stack([-np.sin(ang), np.cos(ang)], axis=1)
+    both = np.vstack([uv, uv + 2.0 * tang]).reshape(-1, 1, 2)
+    xy = cv2.undistortPoints(both, K, np.asarray(dist, float)).reshape(-1, 2)
+    rays = np.column_stack([xy, np.ones(len(xy))]) @ T_table_cam[:3, :3].T
+    return idx, rays[: len(idx)], rays[len(idx):]
+
+
+def _levels(m_z: np.ndarray, w: np.ndarray | None = None, max_levels: int = 4,
+            gap_mm: float = 0.5) -> list[tuple[float, np.ndarray]]:
+    """Template points grouped by height: (height mm, indices) of at most ``max_levels`` planes.
+
+    Points closer than ``gap_mm`` in height form one group (chains of them too). When there are more
+    groups than planes, the heaviest groups (by weight ``w``) become the planes and the other points
+    join the nearest plane within ``gap_mm`` or are left out: merging two real heights (a vise's base
+    at 0 and its ways at 14 mm) would put both on a plane where neither is."""
+    w = np.ones(len(m_z)) if w is None else np.asarray(w, float)
+    order = np.argsort(m_z)
+    groups, start = [], 0
+    for k in range(1, len(order) + 1):
+        if k == len(order) or m_z[order[k]] - m_z[order[k - 1]] > gap_mm:
+            groups.append(order[start:k])
+            start = k
+    if len(groups) <= max_levels:
+        return [(float(np.average(m_z[g], weights=w[g] + 1e-12)), g) for g in groups]
+    groups.sort(key=lambda g: -float(w[g].sum()))
+    heights = np.array([float(np.average(m_z[g], weights=w[g] + 1e-12)) for g in groups[:max_levels]])
+    near = np.argmin(np.abs(m_z[:, None] - heights[None, :]), axis=1)
+    close = np.abs(m_z - heights[near]) <= gap_mm
+    return [(float(h), np.nonzero(close & (near == i))[0]) for i, h in enumerate(heights)]
+
+
+def _plane_edges(rays, C, z: float, extent_xy, b: float):
+    """Image edge pixels cast onto the horizontal plane z (table frame) on a grid of b mm: grid size
+    (nx, ny), cell indices (ix, iy), edge direction on the plane (rad, mod pi), inside-grid mask."""
+    _, r0, r1 = rays
+    x0, x1, y0, y1 = extent_xy
+    nx = int(np.ceil((x1 - x0) / b)) + 1
+    ny = int(np.ceil((y1 - y0) / b)) + 1
+    lam0 = (z - C[2]) / r0[:, 2]
+    lam1 = (z - C[2]) / r1[:, 2]
+    ok = (lam0 > 0) & (lam1 > 0)
+    p0 = C[:2] + lam0[ok, None] * r0[ok, :2]
+    p1 = C[:2] + lam1[ok, None] * r1[ok, :2]
+    dd = p1 - p0
+    e_phi = np.mod(np.arctan2(dd[:, 1], dd[:, 0]), np.pi)
+    ix = np.floor((p0[:, 0] - x0) / b + 0.5).astype(np.int64)
+    iy = np.floor((p0[:, 1] - y0) / b + 0.5).astype(np.int64)
+    inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    return nx, ny, ix, iy, e_phi, inside
+
+
+def _support_maps(rays, C, z: float, extent_xy, b: float, n_channels: int, tau_bins: float):
+    """Edge support on the plane z: (n_channels, ny, nx) in [0, 1], 1 on an edge of that direction."""
+    nx, ny, ix, iy, e_phi, inside = _plane_edges(rays, C, z, extent_xy, b)
+    ch_w = np.pi / n_channels
+    sup = np.zeros((n_channels, ny, nx), np.float32)
+    for k in range(n_channels):
+        dphi = np.abs(np.mod(e_phi - (k + 0.5) * ch_w + np.pi / 2, np.pi) - np.pi / 2)
+        m = inside & (dphi <= ch_w)          # channel k holds edges within one channel width
+        img = np.full((ny, nx), 255, np.uint8)
+        img[iy[m], ix[m]] = 0
+        dt = cv2.distanceTransform(img, cv2.DIST_L2, 3)
+        sup[k] = np.clip(1.0 - dt / tau_bins, 0.0, 1.0)
+    return sup
+
+
+def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, extent_xy,
+                  n_peaks: int, *, px_mm: float, image_score, max_template: int = 400, n_coarse: int = 40,
+                  cache: dict | None = None, image_score_wide=None, image_score_mid=None) -> list[Hyp]:
+    """Exhaustive oriented chamfer matching of the model's horizontal edges on the table planes.
+
+    The image's edge pixels are cast onto each horizontal plane that carries model edges (height
+    levels of the resting state); on such a plane the model's edges form a rigid template, so the
+    score of (x, y, theta) is a correlation of the template with the plane's edge support (truncated
+    distance transform, one map per edge direction). Coarse: every (x, y, theta) on a grid of about
+    diameter/18 (correlations summed in the frequency domain, one inverse FFT per theta); fine: the
+    best ``n_coarse`` cells re-scored twice on half-step grids in the image itself (``image_score``:
+    exact perspective, full-resolution edges and their directions). ``px_mm`` is the plane footprint
+    of one image pixel. Returns the best distinct (x, y, theta) as starts.
+    """
+    cache = {} if cache is None else cache
+    rs = model.resting_states[state]
+    P = transform_points(rs.T_rest_obj, model.samples_obj)
+    D = model.sample_dir_obj @ rs.T_rest_obj[:3, :3].T
+    N = model.mesh.face_normals @ rs.T_rest_obj[:3, :3].T
+    horizontal = np.abs(D[:, 2]) < 0.3
+    cand = np.nonzero(horizontal)[0]
+    if len(cand) == 0:
+        return []
+    # edges of curved surfaces show only as silhouettes, and where depends on the view: in the coarse
+    # template (one plane per height band) a vise's screw and round handles would bury its outline
+    crease = model.edge_feature[model.sample_edge[cand]]
+    coarse_from = crease if crease.sum() >= 50 else np.ones(len(cand), bool)
+    # edges of upward faces show from any side and count fully; others (bottom outline, edges
+    # between side faces) half: which of those show depends on the unknown rotation
+    ef = model.edge_faces[model.sample_edge[cand]]
+    up = (N[ef[:, 0], 2] > 0.3) | ((ef[:, 1] >= 0) & (N[np.maximum(ef[:, 1], 0), 2] > 0.3))
+    wts_all = np.where(up, 1.0, 0.5)
+    diam = model.diameter_mm
+    x0, x1, y0, y1 = extent_xy
+    round_part = (model.continuous_axis_obj is not None and
+                  abs((rs.T_rest_obj[:3, :3] @ model.continuous_axis_obj)[2]) > 0.999)
+
+    def face_normals(sel):
+        """Normals (resting frame) of the faces either side of the samples' edges; a boundary edge
+        repeats its one face."""
+        ef_s = model.edge_faces[model.sample_edge[sel]]
+        return N[ef_s[:, 0]], N[np.where(ef_s[:, 1] >= 0, ef_s[:, 1], ef_s[:, 0])]
+
+    def template(spacing_mm, max_n, only=None):
+        step = max(1, int(round(spacing_mm / model.sample_step_mm)))
+        keep = np.ones(len(cand), bool) if only is None else only
+        sel = cand[keep][::step]
+        w = wts_all[keep][::step]
+        if len(sel) > max_n:
+            k = np.linspace(0, len(sel) - 1, max_n).astype(np.int64)
+            sel, w = sel[k], w[k]
+        return P[sel, :2], np.arctan2(D[sel, 1], D[sel, 0]), P[sel, 2] + height_mm, w, sel
+
+    # ---- coarse: correlation per theta
+    b = float(np.clip(diam / 18.0, 1.5, 16.0))
+    b = max(b, max(x1 - x0, y1 - y0) / 250.0)
+    nx = int(np.ceil((x1 - x0) / b)) + 1
+    ny = int(np.ceil((y1 - y0) / b)) + 1
+    dth = min(np.radians(9.0), 1.5 * b / max(0.5 * diam, 1e-6))
+    nt = 1 if round_part else int(np.ceil(2 * np.pi / dth))
+    dth = 2 * np.pi / nt
+    nch = 4
+    ch_w = np.pi / nch
+    m_xy, m_phi, m_z, wts, _ = template(b / 2, max_template, only=coarse_from)
+    levels = _levels(m_z, wts, max_levels=6, gap_mm=0.5 * b)
+    support = [_support_maps(rays, C, z_l, extent_xy, b, nch, 1.5) for z_l, _ in levels]
+    # support relative to its surroundings (about half the part's size): textured or busy areas,
+    # where every direction has edges everywhere, no longer outscore the part's own outline
+    hp = int(np.clip(2 * round(0.25 * diam / b) + 1, 3, 15))
+    support = [sp - ndimage.uniform_filter(sp, size=(1, hp, hp), mode="nearest") for sp in support]
+    Rk = int(np.ceil(np.max(np.linalg.norm(m_xy, axis=1)) / b)) + 2
+    ks = 2 * Rk + 1
+    # correlation of every (level, channel) support map with the rotated template, summed in the
+    # frequency domain (one inverse FFT per theta)
+    nlc = len(levels) * nch
+    Py = cv2.getOptimalDFTSize(ny + Rk + 1)
+    Px = cv2.getOptimalDFTSize(nx + Rk + 1)
+    FS = sfft.rfft2(np.concatenate(support, axis=0).astype(np.float32), s=(Py, Px), workers=-1)
+    lvl_of = np.full(len(m_xy), -1, np.int64)        # -1: on none of the planes, left out
+    for li, (_, lv) in enumerate(levels):
+        lvl_of[lv] = li
+    on_plane = lvl_of >= 0
+    m_xy, m_phi, wts, lvl_of = m_xy[on_plane], m_phi[on_plane], wts[on_plane], lvl_of[on_plane]
+    score = np.zeros((nt, ny, nx), np.float32)
+    for it in range(nt):
+        th = it * dth
+        c, s = np.cos(th), np.sin(th)
+        kx = np.rint((c * m_xy[:, 0] - s * m_xy[:, 1]) / b + Rk).astype(np.int64)
+        ky = np.rint((s * m_xy[:, 0] + c * m_xy[:, 1]) / b + Rk).astype(np.int64)
+        chn = np.clip((np.mod(m_phi + th, np.pi) / ch_w).astype(np.int64), 0, nch - 1)
+        ker = np.zeros((nlc, ks, ks), np.float32)
+        np.add.at(ker, (lvl_of * nch + chn, ky, kx), wts.astype(np.float32))
+        used = np.nonzero(ker.reshape(nlc, -1).any(axis=1))[0]
+        FK = sfft.rfft2(ker[used], s=(Py, Px), workers=-1)
+        corr = sfft.irfft2(np.einsum("kij,kij->ij", FS[used], np.conj(FK)), s=(Py, Px), workers=-1)
+        score[it] = np.roll(corr, (Rk, Rk), axis=(0, 1))[:ny, :nx]
+    flat = score.ravel()
+    k = min(len(flat), 20 * n_coarse)
+    top = np.argpartition(-flat, k - 1)[:k]
+    top = top[np.argsort(-flat[top])]
+    it_, rem = np.divmod(top, ny * nx)
+    iy_, ix_ = np.divmod(rem, nx)
+    cx, cy, cth = x0 + ix_ * b, y0 + iy_ * b, it_ * dth
+    keep = _nms(cx, cy, cth, 1.5 * b, 1.5 * dth, n_coarse)
+    cx, cy, cth = cx[keep], cy[keep], cth[keep]
+    # long straight image edges (slots, shadows, texture) give ridges of high correlation at the
+    # turns that align the template's edges with them and crowd the part's own peak out of the
+    # global ranking: also take the best local maxima of every turn and let the image decide
+    # (wide soft chamfer score with exact perspective), keeping the best n_coarse of both
+    if image_score_wide is not None and nt > 1:
+        k_t = 4
+        loc = (score == ndimage.maximum_filter(score, size=(1, 3, 3), mode="nearest")) & (score > 0)
+        flat_t = np.where(loc, score, -np.inf).reshape(nt, -1)
+        top_t = np.argpartition(-flat_t, k_t - 1, axis=1)[:, :k_t]
+        it2 = np.repeat(np.arange(nt), k_t)
+        cell = top_t.ravel()
+        good = np.isfinite(flat_t[it2, cell])
+        iy2, ix2 = np.divmod(cell[good], nx)
+        ax = np.concatenate([cx, x0 + ix2 * b])
+        ay = np.concatenate([cy, y0 + iy2 * b])
+        at = np.concatenate([cth, it2[good] * dth])
+        _, _, _, w_w, w_sel = template(max(3.0 * px_mm, diam / 60.0), 80)
+        wide = image_score_wide(ax, ay, at, P[w_sel] + np.array([0.0, 0.0, height_mm]), D[w_sel], w_w,
+                                normals=face_normals(w_sel))
+        order = np.argsort(-wide)
+        keep = _nms(ax[order], ay[order], at[order], 1.5 * b, 1.5 * dth, n_coarse)
+        cx, cy, cth = ax[order][keep], ay[order][keep], at[order][keep]
+
+    # ---- fine: re-score the coarse cells' neighbourhoods in the image (exact perspective)
+    _, _, _, f_w, f_sel = template(max(2.0 * px_mm, diam / 100.0), 120)
+    f_P = P[f_sel] + np.array([0.0, 0.0, height_mm])
+    f_D = D[f_sel]
+    f_N = face_normals(f_sel)
+    hx, hy, ht = cx, cy, cth
+    # each step's scorer reaches about as far as the step is coarse (a 2 px scorer cannot see a part
+    # half a coarse cell away); every coarse cell keeps its best refinement, so a big part whose
+    # neighbourhood is full of good-looking cells does not crowd the other cells out
+    for (step_xy, step_th), image_score in zip(((b / 2, dth / 2), (b / 4, dth / 4)),
+                                               (image_score_wide or image_score, image_score_mid or image_score)):
+        g = np.array([-step_xy, 0.0, step_xy])
+        gt = np.array([0.0]) if round_part else np.array([-step_th, 0.0, step_th])
+        DX, DY, DT = np.meshgrid(g, g, gt, indexing="ij")
+        nb = DX.size
+        hx = (hx[:, None] + DX.ravel()[None, :]).ravel()
+        hy = (hy[:, None] + DY.ravel()[None, :]).ravel()
+        ht = (ht[:, None] + DT.ravel()[None, :]).ravel()
+        fscore = image_score(hx, hy, ht, f_P, f_D, f_w, normals=f_N)
+        best_of_cell = np.arange(len(hx) // nb) * nb + np.argmax(fscore.reshape(-1, nb), axis=1)
+        order = best_of_cell[np.argsort(-fscore[best_of_cell])]
+        hx, hy, ht, fscore = hx[order], hy[order], ht[order], fscore[order]
+    keep = _nms(hx, hy, ht, max(0.2 * diam, 2.5 * b), np.radians(15.0), n_peaks)
+    out: list[Hyp] = []
+    for i in keep:
+        c1, s1 = np.cos(ht[i]), np.sin(ht[i])
+        T = make_pose(np.array([[c1, -s1, 0], [s1, c1, 0], [0, 0, 1.0]]), [hx[i], hy[i], height_mm]) @ rs.T_rest_obj
+        out.append(Hyp(state=state, T_table_obj=T, votes=float(fscore[i]), height_mm=height_mm))
+    return out
+
+
+def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, max_angle_deg: float = 20.0):
+    """Score function for many planar poses at once: each pose (x, y, theta) moves template points
+    ``P`` (M, 3, resting frame) with directions ``D``; the score is the weighted share of projected
+    points within ``tau_px`` of an image edge of compatible direction (soft: 1 - d / tau)."""
+    R = T_cam_table[:3, :3]
+    t = T_cam_table[:3, 3]
+    cos_tol = np.cos(np.radians(max_angle_deg))
+
+    C = -R.T @ t                                  # camera centre, table frame
+
+    def score(hx, hy, ht, P, D, w, normals=None):
+        c, s = np.cos(ht)[:, None], np.sin(ht)[:, None]
+        X = np.stack([hx[:, None] + c * P[None, :, 0] - s * P[None, :, 1],
+                      hy[:, None] + s * P[None, :, 0] + c * P[None, :, 1],
+                      np.broadcast_to(P[None, :, 2], (len(hx), len(P)))], axis=-1).reshape(-1, 3)
+        vis = None
+        if normals is not None:
+            # an edge shows only if one of its faces turns towards the camera (back edges of the
+            # part never do; counting them drowns the true pose among clutter that fits by chance)
+            V = (C[None, :] - X).reshape(len(hx), len(P), 3)
+            vis = np.zeros((len(hx), len(P)), bool)
+            for Nk in normals:
+                nx = c * Nk[None, :, 0] - s * Nk[None, :, 1]
+                ny = s * Nk[None, :, 0] + c * Nk[None, :, 1]
+                vis |= (nx * V[..., 0] + ny * V[..., 1] + Nk[None, :, 2] * V[..., 2]) > 0
+        Dt = np.stack([c * D[None, :, 0] - s * D[None, :, 1], s * D[None, :, 0] + c * D[None, :, 1],
+                       np.broadcast_to(D[None, :, 2], (len(hx), len(P)))], axis=-1).reshape(-1, 3)
+        Xc = X @ R.T + t
+        uv = project_points_px(Xc, K, dist)
+        uv2 = project_points_px(Xc + 0.5 * (Dt @ R.T), K, dist)
+        tv = uv2 - uv
+        ok = np.isfinite(uv).all(1) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & \
+            (uv[:, 0] <= eimg.width - 1) & (uv[:, 1] <= eimg.height - 1)
+        iu = np.clip(np.nan_to_num(uv[:, 0]).astype(np.int64), 0, eimg.width - 1)
+        iv = np.clip(np.nan_to_num(uv[:, 1]).astype(np.int64), 0, eimg.height - 1)
+        d = eimg.dist_px[iv, iu]
+        a = eimg.edge_angle[eimg.nearest[iv, iu]] if len(eimg.edge_angle) else np.zeros(len(iv))
+        tn = np.linalg.norm(tv, axis=1) + 1e-12
+        # the image gradient is perpendicular to the edge: |sin(angle between gradient and edge)|
+        compat = np.abs(np.cos(a) * tv[:, 1] - np.sin(a) * tv[:, 0]) / tn >= cos_tol
+        val = (np.clip(1.0 - d / tau_px, 0.0, 1.0) * compat * ok).reshape(len(hx), len(P))
+        if vis is None:
+            return val @ w / max(float(w.sum()), 1e-9)
+        # share of the visible weight, but never of less than half the template (a pose that hides
+        # most of the part would otherwise score on its few edges left)
+        return (val * vis) @ w / np.maximum(vis @ w, 0.5 * float(w.sum()) + 1e-9)
+
+    return score
+
+
+def _nms(x, y, th, r_xy, r_th, n_max) -> list[int]:
+    """Greedy non-maximum suppression of (x, y, theta) sorted best first; indices kept."""
+    alive = np.ones(len(x), bool)
+    keep = []
+    for i in range(len(x)):
+        if not alive[i]:
+            continue
+        keep.append(i)
+        if len(keep) >= n_max:
+            break
+        dang = np.abs(np.mod(th - th[i] + np.pi, 2 * np.pi) - np.pi)
+        alive &= ~((np.hypot(x - x[i], y - y[i]) < r_xy) & (dang < r_th))
+    return keep
+
+
+def _intersect(a, b):
+    """Overlap of two table-plane extents (x0, x1, y0, y1), or None where they do not overlap."""
+    e = (max(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), min(a[3], b[3]))
+    return e if e[1] > e[0] and e[3] > e[2] else None
+
+
+def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, height_offsets_mm=(0.0,),
+            resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10, max_edges: int = 60000, rng=None,
+            timings: dict | None = None, table_extent_xy=None):
+    """Stages 1 and 2: starts from the plane search, aligned in the table plane, best first.
+    ``table_extent_xy`` (x0, x1, y0, y1 mm): where the part's centre can be (the table and a margin);
+    the floor and the machine's walls in the background are not searched.
+    Returns (hypotheses, px_per_mm) or the reason (str) why there are none."""
+    timings = {} if timings is None else timings
+    memo = ("search", id(model), T_cam_table.tobytes(), tuple(height_offsets_mm),
+            None if resting_states is None else tuple(resting_states), min_state_probability, n_starts, n_planar,
+            None if table_extent_xy is None else tuple(table_extent_xy))
+    if memo in eimg.cache:              # same image, model and table pose: reuse (recognition)
+        timings.setdefault("search", 0.0)
+        timings.setdefault("planar_fit", 0.0)
+        return eimg.cache[memo]
+    rng = np.random.default_rng(0) if rng is None else rng
+    t = time.perf_counter()
+    T_table_cam = inv(T_cam_table)
+    C = T_table_cam[:3, 3]
+    key = ("rays", max_edges, T_cam_table.tobytes())
+    if key not in eimg.cache:
+        eimg.cache[key] = _edge_rays_table(eimg, K, dist, T_table_cam, max_edges, rng)
+    rays = eimg.cache[key]
+    if rays is None:
+        return "the image has no edges"
+    _, r0, r1 = rays
+    lam = -C[2] / r0[:, 2]
+    lam1 = -C[2] / r1[:, 2]
+    okp = (lam > 0) & (lam1 > 0)
+    pts = C[:2] + lam[okp, None] * r0[okp, :2]
+    if len(pts) < 20:
+        return "no image edges fall on the table plane"
+    px_mm = 0.5 * float(np.median(np.linalg.norm((C[:2] + lam1[okp, None] * r1[okp, :2]) - pts, axis=1)))
+    lo_xy = np.maximum(np.percentile(pts, 1, axis=0), C[:2] - 3000.0) - 150.0
+    hi_xy = np.minimum(np.percentile(pts, 99, axis=0), C[:2] + 3000.0) + 150.0
+    extent = (float(lo_xy[0]), float(hi_xy[0]), float(lo_xy[1]), float(hi_xy[1]))
+    extent = _intersect(extent, extent if table_extent_xy is None else table_extent_xy)   # None if empty
+    if extent is None:
+        return "the image's edges meet the table plane only more than 3 m from the camera"
+    if resting_states is None:
+        states = [i for i, s in enumerate(model.resting_states)
+                  if s.same_as < 0 and (i == 0 or s.probability >= min_state_probability or s.cad_axis)]
+    else:
+        states = list(resting_states)
+    hyps: list[Hyp] = []
+    scorer = _image_scorer(eimg, K, dist, T_cam_table)
+    b_px = float(np.clip(model.diameter_mm / 18.0, 1.5, 16.0)) / max(px_mm, 1e-9)
+    scorer_wide = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(1.2 * b_px, 3.0, 20.0)))
+    scorer_mid = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(0.6 * b_px, 2.5, 10.0)))
+    planes = []
+    for h in height_offsets_mm:            # a height, or (height, table-plane extent to search there)
+        h, ext = (h if isinstance(h, tuple) else (h, None))
+        ext = extent if ext is None else _intersect(ext, extent)
+        if ext is not None:
+            planes.append((float(h), ext))
+    for st in states:
+        for h, ext in planes:
+            hyps += _plane_search(model, st, h, rays, C, ext, n_starts, px_mm=px_mm,
+                                  image_score=scorer, cache=eimg.cache, image_score_wide=scorer_wide,
+                                  image_score_mid=scorer_mid)
+    timings["search"] = (time.perf_counter() - t) * 1e3
+    if not hyps:
+        return "the search produced no pose on the table"
+    t = time.perf_counter()
+    hyps.sort(key=lambda h: -h.votes)
+    # votes are not comparable between resting states (a part on its side shows other edges):
+    # keep the best few of every state besides the best overall
+    # nor between heights (a riser plane full of the table's edges outvotes the part's own): the
+    # best two of every (state, height) as well
+    groups: dict = {}
+    for h in hyps:
+        groups.setdefault((h.state, round(h.height_mm, 1)), []).append(h)
+    extra = [h for st in states for h in [g for g in hyps if g.state == st][:3]]
+    extra += [h for g in groups.values() for h in g[:2]]
+    hyps = list({id(h): h for h in hyps[:n_planar] + extra}.values())     # in order, each once
+    z_typ = float(np.median(transform_points(T_cam_table, np.array([[*h.T_table_obj[:2, 3], 0.0] for h in hyps]))[:, 2]))
+    px_per_mm = K[0, 0] / max(z_typ, 1.0)
+    sub_coarse = sample_subset(model, px_per_mm, 4.0, 400)
+    for h in hyps:
+        planar_fit(eimg, model, h, T_cam_table, K, dist, sub_coarse)
+    hyps.sort(key=lambda h: -h.score)
+    timings["planar_fit"] = (time.perf_counter() - t) * 1e3
+    eimg.cache[memo] = (hyps, px_per_mm)
+    return hyps, px_per_mm
+
+
+
+def turned_over(model: PreparedModel, T_table_obj: np.ndarray) -> list[np.ndarray]:
+    """The pose turned 180 deg about each horizontal axis of the part through its centre, put back
+    on the plane it stood on (lowest vertex at the same height)."""
+    out = []
+    R = T_table_obj[:3, :3]
+    z0 = float(transform_points(T_table_obj, model.mesh.vertices)[:, 2].min())
+    c = transform_points(T_table_obj, model.mesh.bounds.mean(axis=0)[None])[0]     # outline's centre
+    for k in range(3):
+        a = R[:, k]
+        if abs(a[2]) > 0.05:
+            continue                      # not a horizontal axis of the part
+        F = make_pose(Rotation.from_rotvec(np.pi * a / np.linalg.norm(a)).as_matrix())
+        T = make_pose(t=c) @ F @ make_pose(t=-c) @ T_table_obj
+        T[2, 3] += z0 - float(transform_points(T, model.mesh.vertices)[:, 2].min())
+        out.append(T)
+    return out
+
+
+def _start_template(model: PreparedModel, state: int, T0: np.ndarray):
+    """The start as a turn about the table normal and a shift (M, theta0) and a template of at most
+    150 model edge samples in the resting frame at the start's height (P, D, weights); whether the
+    part is round about the table normal."""
+    rs = model.resting_states[state]
+    M = T0 @ inv(rs.T_rest_obj)
+    th0 = float(np.arctan2(M[1, 0], M[0, 0]))
+    P = transform_points(rs.T_rest_obj, model.samples_obj) + np.array([0.0, 0.0, M[2, 3]])
+    D = model.sample_dir_obj @ rs.T_rest_obj[:3, :3].T
+    sel = np.linspace(0, len(P) - 1, min(len(P), 150)).astype(np.int64)
+    round_part = (model.continuous_axis_obj is not None and
+                  abs((rs.T_rest_obj[:3, :3] @ model.continuous_axis_obj)[2]) > 0.999)
+    return M, th0, P[sel], D[sel], np.ones(len(sel)), round_part
+
+
+def _grid_scores(scorer, x0: float, y0: float, th0: float, capture_mm: float, step_mm: float,
+                 capture_rad: float, step_rad: float, P, D, w, round_part: bool):
+    """Scores of every (x, y, theta) on a grid about (x0, y0, th0): arrays hx, hy, ht, score."""
+    g = np.arange(-capture_mm, capture_mm + 1e-9, step_mm)
+    gt = np.array([0.0]) if round_part else np.arange(-capture_rad, capture_rad + 1e-9, step_rad)
+    DX, DY, DT = np.meshgrid(g, g, gt, indexing="ij")
+    hx, hy, ht = x0 + DX.ravel(), y0 + DY.ravel(), th0 + DT.ravel()
+    sc = np.concatenate([scorer(hx[i:i + 2000], hy[i:i + 2000], ht[i:i + 2000], P, D, w)
+                         for i in range(0, len(hx), 2000)])
+    return hx, hy, ht, sc
+
+
+def _planar_pose(state_T_rest: np.ndarray, x: float, y: float, th: float, z: float) -> np.ndarray:
+    c1, s1 = np.cos(th), np.sin(th)
+    return make_pose(np.array([[c1, -s1, 0], [s1, c1, 0], [0, 0, 1.0]]), [x, y, z]) @ state_T_rest
+
+
+def _state_of(model: PreparedModel, T0: np.ndarray) -> int:
+    """The resting state whose table normal the pose matches best."""
+    ups = [float((T0[:3, :3] @ (inv(r.T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0])))[2])
+           for r in model.resting_states]
+    return int(np.argmax(ups))
+
+
+def starts_from_poses(model: PreparedModel, start_poses, T_cam_table, K, dist, eimg: EdgeImage,
+                      capture_mm: float = 30.0, capture_deg: float = 8.0, n_peaks: int = 3):
+    """Starts given by someone who knows roughly where the part is ("refine from here").
+
+    Each start is taken in the resting state whose table normal it matches best, then searched
+    locally in the table plane (x, y within ``capture_mm``, rotation within ``capture_deg``, scored
+    in the image as in the fine stage of the plane search) and aligned: an operator's drag or nudge
+    rarely lands within the few pixels the least-squares fit converges from. The start itself stays
+    a candidate, so a start that is already right cannot be talked out of it.
+    Returns (hypotheses best first, px_per_mm) or the reason (str) why there are none."""
+    starts = [(_state_of(model, T0), T0) for T0 in (check_pose(T, "start pose T_table_obj") for T in start_poses)]
+    if not starts:
+        return "no start pose given"
+    z = float(transform_points(T_cam_table, starts[0][1][:3, 3][None])[0, 2])
+    px_per_mm = K[0, 0] / max(z, 1.0)
+    scorer = _image_scorer(eimg, K, dist, T_cam_table, tau_px=3.0)
+    sub_coarse = sample_subset(model, px_per_mm, 4.0, 400)
+    hyps: list[Hyp] = []
+    for state, T0 in starts:
+        M, th0, P, D, w, round_part = _start_template(model, state, T0)
+        step = 2.5 / px_per_mm                 # within the scorer's reach of 3 px
+        dth = np.radians(min(2.0, np.degrees(2.5 / (px_per_mm * max(0.5 * model.diameter_mm, 1.0)))))
+        hx, hy, ht, sc = _grid_scores(scorer, M[0, 3], M[1, 3], th0, capture_mm, max(step, capture_mm / 25),
+                                      np.radians(capture_deg), dth, P, D, w, round_part)
+        order = np.argsort(-sc)
+        keep = _nms(hx[order], hy[order], ht[order], max(0.2 * model.diameter_mm, 3 * step),
+                    np.radians(15.0), n_peaks)
+        for i in order[keep]:
+            T = _planar_pose(model.resting_states[state].T_rest_obj, hx[i], hy[i], ht[i], M[2, 3])
+            hyps.append(planar_fit(eimg, model, Hyp(state=state, T_table_obj=T, votes=float(sc[i])),
+                                   T_cam_table, K, dist, sub_coarse))
+        hyps.append(planar_fit(eimg, model, Hyp(state=state, T_table_obj=T0, votes=0.0),
+                               T_cam_table, K, dist, sub_coarse))
+    hyps.sort(key=lambda h: -h.score)
+    return hyps, px_per_mm
+
+
+def settle_start(model: PreparedModel, h: Hyp, T_cam_table, K, dist, eimg: EdgeImage, *,
+                 capture_mm: float, capture_deg: float, n_steps: int = 6) -> Hyp:
+    """A start searched once more around itself, coarse to fine, and aligned in the table plane;
+    the better aligned of it and the start (by the planar fit's score).
+
+    Pass 1 scores a grid of ``2 n_steps + 1`` values per axis over ``capture_mm`` and ``capture_deg``
+    with a scorer as wide as its step; pass 2 a grid as fine as the 3 px scorer reaches over one step
+    of pass 1 around its best. About 2 x 13^3 poses, whatever the part's size in the image."""
+    state, T0 = h.state, h.T_table_obj
+    z = float(transform_points(T_cam_table, T0[:3, 3][None])[0, 2])
+    px_per_mm = K[0, 0] / max(z, 1.0)
+    M, th0, P, D, w, round_part = _start_template(model, state, T0)
+    fine = 2.5 / px_per_mm
+    dth_fine = np.radians(min(2.0, np.degrees(2.5 / (px_per_mm * max(0.5 * model.diameter_mm, 1.0)))))
+    x, y, th = M[0, 3], M[1, 3], th0
+    cap, cap_t = capture_mm, np.radians(capture_deg)
+    for _ in range(2):
+        step, dth = max(fine, cap / n_steps), max(dth_fine, cap_t / n_steps)
+        scorer = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(step * px_per_mm, 3.0, 12.0)))
+        hx, hy, ht, sc = _grid_scores(scorer, x, y, th, cap, step, cap_t, dth, P, D, w, round_part)
+        i = int(np.argmax(sc))
+        x, y, th = hx[i], hy[i], ht[i]
+        cap, cap_t = step, dth
+    sub_coarse = sample_subset(model, px_per_mm, 4.0, 400)
+    T = _planar_pose(model.resting_states[state].T_rest_obj, x, y, th, M[2, 3])
+    settled = planar_fit(eimg, model, Hyp(state=state, T_table_obj=T, votes=h.votes, height_mm=h.height_mm),
+                         T_cam_table, K, dist, sub_coarse)
+    return settled if settled.score > h.score else h
