@@ -30,8 +30,11 @@ FIXTURE_KINDS = CARRYING_KINDS                 # clamps and supports: they carry
 # Fixtures are often half hidden by the part they hold (jaws, parallels under it): they are accepted
 # at a lower share of supported edges than a workpiece, with the same margin and distinctiveness.
 FIXTURE_MIN_SCORE = 0.35
-# A fixture stands on a ground base, bolted down: its contact is much tighter than a part's.
-FIXTURE_CONTACT = {"contact_sigma_mm": 0.05, "contact_sigma_deg": 0.05}
+# A fixture stands on a ground base, bolted down: its contact is much tighter than a part's. Its
+# starts are searched once more around themselves before the fine fit (settle_starts): the plane
+# search leaves a vise as big as a third of the table a coarse cell and a few degrees off, too far
+# for the fine fit (devset vise bodies located 8 -> 10 of 16, about 2-4 s more per fixture).
+FIXTURE_OPTIONS = {"contact_sigma_mm": 0.05, "contact_sigma_deg": 0.05, "settle_starts": True}
 
 # BGR colours per object, in order (workpiece first): distinct on grey metal.
 COLOURS = [(0, 220, 0), (255, 160, 0), (0, 200, 255), (255, 0, 255), (255, 255, 0), (80, 80, 255)]
@@ -271,7 +274,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
                                          min_margin=min_margin, height_offsets_mm=tuple(planes),
                                          free_height=not fixture, known_models=kn, known_regions=labels,
                                          known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
-                                         **(FIXTURE_CONTACT if fixture else {}))
+                                         **(FIXTURE_OPTIONS if fixture else {}))
         chain_text = ""
         if pose and fixture:
             carrier = _carrier(seats, pose, cand)
