@@ -7,7 +7,7 @@ from pathlib import Path
 
 from sqlmodel import Session, col, select
 
-from app.services.cameras import decode_image, get_camera
+from app.services.cameras import read_image, get_camera
 from app.services.errors import Invalid, NotFound
 from app.store.files import FileStore
 from app.store.models import RotaryRun
@@ -38,7 +38,7 @@ def run_rotary(session: Session, files: FileStore, *, camera_id: int, images: li
         tgt = target_from_dict(target) if target else default_target()
     except TargetError as exc:
         raise Invalid(f"target: {exc}") from None
-    decoded = [decode_image(data, f"image {name!r}") for name, data in images]
+    decoded = [read_image(data, f"image {name!r}") for name, data in images]
     w, h = cam.intrinsics["width"], cam.intrinsics["height"]
     for (name, _), img in zip(images, decoded):
         if (img.shape[1], img.shape[0]) != (w, h):
