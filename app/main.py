@@ -17,7 +17,8 @@ import app as app_pkg
 from app.api.deps import path_ids_in_range
 from app.api.headers import SecurityHeaders
 from app.api.limits import RequestGuard, route_table
-from app.api.routes import audit, auth, cameras, health, machines, models, pages, planning, rotary, setups, sheet
+from app.api.routes import (audit, auth, cameras, health, machines, models, pages, planning, rotary, setups, sheet,
+                            viewer)
 from app.api.routes import docs as api_docs
 from app.config import Settings, get_settings
 from app.services.access import dummy_hash, ensure_first_admin
@@ -147,7 +148,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(RequestGuard, fastapi_app=app, routes=route_table(api_routers, API_PREFIX))
     app.add_middleware(SecurityHeaders)  # outermost: every answer carries them, refusals included
     app.include_router(api_docs.router)  # /docs, /redoc without internet
-    app.include_router(pages.router)  # operator pages, /static, /viewer relay
+    app.include_router(pages.router)  # operator pages, /static
+    app.include_router(viewer.router)  # /viewer/<kind>/<id>/: the 3D view's one door
     return app
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from app.geometry.marker_sheet import marker_sheet_pdf, marker_sheet_svg, sheet_pages  # noqa: E402
+from app.vision.printables.markers import marker_sheet_pdf, marker_sheet_svg, sheet_pages  # noqa: E402
 from app.geometry.parts import ExampleModel, example_library  # noqa: E402
 
 HERE = Path(__file__).resolve().parent

@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from app.geometry.fiducial_layout import parse_layout
-    from app.geometry.marker_sheet import marker_sheet_pdf, marker_sheet_svg, sheet_pages
+    from app.vision.printables.markers import marker_sheet_pdf, marker_sheet_svg, sheet_pages
 
     out = Path(args.out)
     try:

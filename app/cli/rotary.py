@@ -51,9 +51,9 @@ def run(args: argparse.Namespace) -> int:
 
     from app.vision.intrinsics import load_intrinsics
     from app.vision.rotary import RotaryError, draw_rotary, measure_run
-    from app.vision.rotary_report import write_report
-    from app.vision.rotary_target import (TargetError, default_target, target_from_dict, target_pdf,
-                                          target_svg)
+    from app.services.rotary import rotary_report
+    from app.vision.printables import target_pdf, target_svg
+    from app.vision.rotary_target import TargetError, default_target, target_from_dict
 
     try:
         target = (target_from_dict(json.loads(Path(args.target).read_text())) if args.target
@@ -107,8 +107,14 @@ def run(args: argparse.Namespace) -> int:
                           "n_edge_points": r.n_edge_points}
                          for f, r in zip(args.images, res.images)]}
     if args.report:
-        rep, paths = write_report(args.report, res.angles_deg, res.measured_deg, res.error_arcsec,
-                                  args.directions, args.axis_name)
+        rep, named = rotary_report(res.angles_deg, res.measured_deg, res.error_arcsec, args.directions,
+                                   args.axis_name)
+        out = Path(args.report)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = []
+        for name, data in named.items():
+            (out / name).write_bytes(data)
+            paths.append(out / name)
         answer["report"] = rep.to_dict()
         answer["report_files"] = [str(p) for p in paths]
     if args.json:

@@ -100,3 +100,20 @@ def work_offset_from_poses(
         x_mm=x, y_mm=y, z_mm=z, c_deg=c, a_deg=a, b_deg=b, tilt_deg=tilt,
         max_tilt_deg=float(max_tilt_deg), T_machine_datum=T, reason=reason,
     )
+
+
+def sheet_work_offset(T_machine_bed: np.ndarray, x_mm: float, y_mm: float, c_deg: float,
+                      thickness_mm: float) -> tuple[float, float, float]:
+    """Machine X, Y (mm) and C (degrees) of a sheet's work origin found in the bed frame.
+
+    The origin is ``T_bed_datum = [Rz(c_deg) | (x_mm, y_mm, thickness_mm)]`` (bed frame: slat tips at
+    z = 0, so the sheet's top face is at ``thickness_mm``); the offset is ``T_machine_bed @ T_bed_datum``
+    reduced to its translation in X, Y and its rotation about machine Z. Z is not returned: the
+    controller keeps its own (height sensing sets it on laser and plasma machines).
+    """
+    c = np.radians(c_deg)
+    T_bed_datum = np.eye(4)
+    T_bed_datum[:2, :2] = [[np.cos(c), -np.sin(c)], [np.sin(c), np.cos(c)]]
+    T_bed_datum[:3, 3] = (x_mm, y_mm, thickness_mm)
+    T = np.asarray(T_machine_bed, float) @ T_bed_datum
+    return float(T[0, 3]), float(T[1, 3]), float(np.degrees(np.arctan2(T[1, 0], T[0, 0])))

@@ -25,7 +25,8 @@ from functools import lru_cache
 
 from sqlmodel import Session, col, select
 
-from app.services.errors import Conflict, Invalid
+from app.services.errors import Conflict, Invalid, NotFound
+from app.store.db import session_scope
 from app.store.models import ApiKey, LoginSession, User, utcnow
 
 log = logging.getLogger(__name__)
@@ -107,8 +108,6 @@ def create_api_key(session: Session, name: str, scope: str) -> tuple[ApiKey, str
 def revoke_api_key(session: Session, key_id: int) -> None:
     row = session.get(ApiKey, key_id)
     if row is None:
-        from app.services.errors import NotFound
-
         raise NotFound(f"API key {key_id} not found")
     row.revoked_at = utcnow()
     session.add(row)
@@ -159,6 +158,15 @@ def resolve_token(session: Session, token: str) -> Principal | None:
     return None
 
 
+def principal_of_token(engine, token: str | None) -> Principal | None:
+    """:func:`resolve_token` in a transaction of its own (for callers without a request's session: the
+    viewer's websocket relay); None without a token."""
+    if not token:
+        return None
+    with session_scope(engine) as session:
+        return resolve_token(session, token)
+
+
 def ensure_first_admin(session: Session) -> str | None:
     """On a fresh install make user 'admin' with a random password and return it (printed once)."""
     if session.exec(select(User)).first() is not None:
@@ -169,8 +177,6 @@ def ensure_first_admin(session: Session) -> str | None:
 
 # ------------------------------------------------------------------------ account management (CLI, admin)
 def find_user(session: Session, name: str) -> User:
-    from app.services.errors import NotFound
-
     user = session.exec(select(User).where(User.name == name)).first()
     if user is None:
         raise NotFound(f"no user {name!r}")
@@ -219,8 +225,6 @@ def set_password(session: Session, name: str, password: str | None = None) -> tu
 
 
 def get_user(session: Session, user_id: int) -> User:
-    from app.services.errors import NotFound
-
     user = session.get(User, user_id)
     if user is None:
         raise NotFound(f"user {user_id} not found")

@@ -10,16 +10,16 @@ import numpy as np
 from sqlmodel import Session, col, select
 
 from app.services.errors import Invalid, NotFound, Unavailable
+from app.sources import SourceError, make_source
 from app.store.files import FileStore
 from app.store.models import Calibration, Camera, utcnow
-from app.vision.intrinsics import parse_intrinsics
+from app.vision import calibration as calib
+from app.vision.intrinsics import Intrinsics, parse_intrinsics  # Intrinsics: the routes' body schema too
 
 log = logging.getLogger(__name__)
 
 
 def validate_source(source: dict | None) -> dict:
-    from app.sources import make_source
-
     source = source or {"kind": "upload"}
     try:
         make_source(source)
@@ -78,8 +78,6 @@ def delete_camera(session: Session, camera_id: int) -> None:
 
 def grab_frame(cam: Camera) -> np.ndarray:
     """One BGR frame from the camera's source; 409 for upload-only cameras, 502 when the source fails."""
-    from app.sources import SourceError, make_source
-
     if cam.source.get("kind", "upload") == "upload":
         raise Invalid(f"camera {cam.id} ({cam.name}) has no image source (upload only); "
                       "configure an HTTP snapshot URL, a folder or an OpenCV device, or upload an image")
@@ -89,22 +87,34 @@ def grab_frame(cam: Camera) -> np.ndarray:
         raise Unavailable(str(exc)) from None
 
 
-def decode_image(data: bytes, what: str = "image") -> np.ndarray:
-    """Decode an uploaded JPEG/PNG/... to BGR; 422 with the reason when it is not an image."""
+def read_image(data: bytes, what: str = "image") -> np.ndarray:
+    """Uploaded or stored image bytes (JPEG/PNG/...) decoded to BGR (:func:`app.vision.calibration.decode_image`);
+    422 with the reason when they are not an image."""
     if not data:
         raise Invalid(f"{what} is empty")
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    if img is None:
-        raise Invalid(f"{what} is not a readable image (JPEG, PNG, BMP or TIFF expected)")
-    return img
+    try:
+        return calib.decode_image(data)
+    except ValueError:
+        raise Invalid(f"{what} is not a readable image (JPEG, PNG, BMP or TIFF expected)") from None
+
+
+IMAGE_MAGIC = ((b"\x89PNG", "image/png"), (b"\xff\xd8", "image/jpeg"), (b"BM", "image/bmp"),
+               (b"II*\x00", "image/tiff"), (b"MM\x00*", "image/tiff"))
+
+
+def image_media_type(data: bytes) -> str:
+    """The media type of encoded image bytes as their first bytes tell (stored with the file, so the
+    image is answered with its real type): PNG, JPEG, BMP, TIFF, else ``application/octet-stream``."""
+    for magic, media in IMAGE_MAGIC:
+        if data.startswith(magic):
+            return media
+    return "application/octet-stream"
 
 
 def calibrate_camera(session: Session, files: FileStore, camera_id: int, *, images: list[tuple[str, bytes]],
                      board: dict, fix_aspect_ratio: bool = False,
                      subpix_half_window_px: int | None = None) -> Calibration:
     """Calibrate from board images; the run is stored (images included) whether it succeeds or not."""
-    from app.vision import calibration as calib
-
     cam = get_camera(session, camera_id)
     if not images:
         raise Invalid("no images: upload at least 3 views of the board")
@@ -112,7 +122,7 @@ def calibrate_camera(session: Session, files: FileStore, camera_id: int, *, imag
         spec = calib.BoardSpec.model_validate(board)
     except ValueError as exc:
         raise Invalid(f"board: {_first_error(exc)}") from None
-    decoded = [decode_image(data, f"image {name!r}") for name, data in images]
+    decoded = [read_image(data, f"image {name!r}") for name, data in images]
     shas = [files.put(session, data, "image/jpeg") for _name, data in images]
     result = calib.calibrate(decoded, spec, fix_aspect_ratio=fix_aspect_ratio, names=[n for n, _ in images],
                              subpix_half_window_px=subpix_half_window_px)

@@ -24,6 +24,7 @@ from datetime import datetime, timezone
 from urllib.parse import urlparse
 
 import httpx
+import paho.mqtt.client as mqtt
 
 log = logging.getLogger(__name__)
 
@@ -99,8 +100,6 @@ class EventBus:
     def _send_mqtt(self, event_type: str, body: bytes) -> None:
         try:
             if self._mqtt is None:
-                import paho.mqtt.client as mqtt
-
                 u = urlparse(self.mqtt_url)
                 client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"setupcam-{uuid.uuid4().hex[:8]}")
                 if u.username:

@@ -9,17 +9,21 @@ export of the same revision to the same slot is answered from the first one, nev
 from __future__ import annotations
 
 import logging
+import threading
 from datetime import datetime, timezone
 
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, col, select
 
-from app.machine import ControllerError, NoOffsetYet, WorkOffset, make_controller, slot_number
+from app.machine import ControllerError, NoOffsetYet, WorkOffset, make_controller
 from app.services.audit import audit, audit_apart
+from app.services.controller_write import (Verdict, check_slot, guarded_write, open_controller, travel_reasons,
+                                           verify)
 from app.services.errors import Conflict, Invalid, NotFound, Unavailable
 from app.services.machines import get_machine
-from app.services.setups import get_setup
-from app.store.models import Export, utcnow
+from app.services.setups import get_setup, setup_result
+from app.store.db import session_scope
+from app.store.models import Export, Setup, utcnow
 
 log = logging.getLogger(__name__)
 
@@ -42,22 +46,19 @@ def plausibility_reasons(setup, machine) -> list[tuple[str, str]]:
     """Every (reason code, sentence) why the setup's offset must not be used; empty when it may.
     Codes: no_workpiece, tilt (the offset is not usable, e.g. tilted beyond the tolerance),
     uncertainty_fail, outside_travel."""
-    result = setup.result or {}
-    off = result.get("offset")
+    result = setup_result(setup)
+    off = result.offset
     if not off:
         return [("no_workpiece", f"setup {setup.id} has no workpiece offset (no workpiece located)")]
     reasons = []
     if not off.get("ok", False):
         reasons.append(("tilt", off.get("reason") or "offset not usable"))
-    wp = next((o for o in result.get("objects", []) if o.get("name") == off.get("object")), None)
-    if wp is not None and not wp.get("uncertainty_pass", False):
-        reasons.append(("uncertainty_fail", f"uncertainty too large ({wp.get('uncertainty_reason') or 'unknown'}); "
+    wp = result.workpiece()  # the offset is this workpiece's datum (proposed_offset)
+    if wp is not None and not wp.uncertainty_pass:
+        reasons.append(("uncertainty_fail", f"uncertainty too large ({wp.uncertainty_reason or 'unknown'}); "
                         "take another image with more of the part visible, or probe it"))
-    for axis in ("x", "y", "z"):
-        v = off[f"{axis}_mm"]
-        lo, hi = machine.travel_mm[axis]
-        if not lo <= v <= hi:
-            reasons.append(("outside_travel", f"{axis.upper()} {v:.3f} mm is outside the machine's travel [{lo}, {hi}] mm"))
+    at = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"])
+    reasons += [("outside_travel", why) for why in travel_reasons(machine, at)]
     return reasons
 
 
@@ -96,34 +97,23 @@ def _settle(session: Session, row: Export, status: str, reason: str, actor: str,
     return row
 
 
+def _settle_verdict(session: Session, row: Export, verdict: Verdict, actor: str, machine_id: int | None) -> Export:
+    return _settle(session, row, verdict.status, verdict.reason, actor, machine_id, verdict.read_back)
+
+
 def reconcile(session: Session, row: Export, controller, machine_id: int | None, actor: str = "reconcile") -> Export:
     """Settle an open export by reading the controller's slot: ``written`` when it holds what was to be
     written (within the controller's rounding), ``failed`` when it does not (or nothing was written yet),
     ``unknown`` while the controller cannot be read."""
-    try:
-        back = controller.read_offset(row.slot)
-    except NoOffsetYet as exc:       # the controller answers and holds nothing there: nothing arrived
-        return _settle(session, row, "failed", f"not written: {exc}", actor, machine_id)
-    except ControllerError as exc:
-        return _settle(session, row, "unknown", f"outcome unknown and the controller cannot be read ({exc}); "
-                                                "it is read back again before any retry and at start-up",
-                       actor, machine_id)
+    wanted = None
     if row.written:
         wanted = WorkOffset(row.written["x_mm"], row.written["y_mm"], row.written["z_mm"], row.written["c_deg"])
-        if wanted.agrees_with(back, controller.rounding_mm, controller.rounding_deg):
-            return _settle(session, row, "written", "", actor, machine_id, back)
-        return _settle(session, row, "failed", f"not written: {row.slot} holds {back}, not {wanted}", actor,
-                       machine_id, back)
-    return _settle(session, row, "failed", "not written: the export stopped before the write", actor, machine_id,
-                   back)
+    return _settle_verdict(session, row, verify(controller, row.slot, wanted), actor, machine_id)
 
 
 def reconcile_open_exports(ctx, stale_s: float = 0.0, actor: str = "reconcile at start-up") -> list[int]:
     """Settle every export left pending, writing or unknown for at least ``stale_s`` seconds: at
     start-up (0: all a previous run left) and by :class:`ExportWatch` (the timeout)."""
-    from app.store.db import session_scope
-    from app.store.models import Setup
-
     settled = []
     with session_scope(ctx.engine) as session:
         rows = session.exec(select(Export).where(col(Export.status).in_(OPEN_STATES))).all()
@@ -151,8 +141,6 @@ class ExportWatch:
     WRITING_TIMEOUT_S (a request that hung, an unknown outcome) by reading the controllers back."""
 
     def __init__(self, ctx, interval_s: float = 30.0):
-        import threading
-
         self.ctx, self.interval_s = ctx, interval_s
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="export-watch", daemon=True)
@@ -190,11 +178,7 @@ def export_offset(session: Session, settings, events, setup_id: int, *, slot: st
 def _export(session: Session, settings, events, setup_id: int, *, slot: str, actor: str,
             acknowledge_change: bool, idempotency_key: str | None) -> Export:
     setup = get_setup(session, setup_id)
-    slot = slot.strip().upper()
-    try:
-        slot_number(slot)
-    except ValueError as exc:
-        raise Invalid(str(exc)) from None
+    slot = check_slot(slot)
     require_confirmed(setup)
     key = (idempotency_key or "").strip()[:100] or f"setup{setup_id}-r{setup.result_revision}-{slot}"
     done = session.exec(select(Export).where(Export.setup_id == setup_id, Export.slot == slot,
@@ -211,10 +195,7 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
     if not machine.controller:
         raise Invalid(f"machine {machine.id} ({machine.name}) has no controller configured")
     offset, off = plausibility(setup, machine, settings)
-    try:
-        controller = make_controller(machine.controller)
-    except ValueError as exc:
-        raise Invalid(f"machine {machine.id} controller settings: {exc}") from None
+    controller = open_controller(machine)
     try:
         if done is not None and done.status in OPEN_STATES:
             # after a crash, a timeout or an unknown outcome: read back before writing anything again
@@ -237,52 +218,40 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
         audit(session, actor, "export.attempt", setup_id=setup_id, machine_id=machine.id, slot=slot,
               export_id=row.id, idempotency_key=key)
         session.commit()  # the attempt is on record before the controller is touched
-        why = ""
-        try:
-            before = controller.read_offset(slot)
-        except NoOffsetYet as exc:
-            # nothing to show side by side: the first write to a slot is acknowledged like a large change
-            before = None
-            why = (f"{exc}, so there is no current {slot} to compare the change with; check the new values "
-                   "and export again with acknowledge_change=true")
-        except ControllerError as exc:
+        ids = {"setup_id": setup_id, "machine_id": machine.id}
+
+        def unreachable(exc: ControllerError) -> None:
             _settle(session, row, "failed", f"controller unreachable ({exc}); nothing was written", actor, machine.id)
             events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": str(exc)})
-            raise Unavailable(f"{exc}; nothing was written") from None
-        before_dict = before.as_dict() if before is not None else None
-        if before is not None:
-            d_mm, d_deg = offset.difference(before)
-            if d_mm > settings.max_offset_change_mm or d_deg > settings.max_offset_change_deg:
-                why = (f"the new {slot} differs from the controller's current one by {d_mm:.3f} mm / "
-                       f"{d_deg:.3f}° (limits {settings.max_offset_change_mm} mm / "
-                       f"{settings.max_offset_change_deg}°); compare them and export again with "
-                       "acknowledge_change=true if this is intended")
-        if why and not acknowledge_change:
-            row.before = before_dict
-            _settle(session, row, "failed", f"refused, nothing written: {why}", actor, machine.id)
-            refused = Conflict(why)
-            refused.audited = True  # the row and its export.failed entry say it already
-            raise refused
-        row.status, row.written, row.before, row.updated_at = "writing", offset.as_dict(), before_dict, utcnow()
-        session.add(row)
-        audit(session, actor, "export.write", setup_id=setup_id, machine_id=machine.id, slot=slot,
-              before=before_dict, written=offset.as_dict(), controller=controller.describe)
-        session.commit()  # "writing" is on record before the write: a crash from here on is reconciled
-        try:
-            controller.write_offset(slot, offset)
-        except ControllerError as exc:
-            log.error("export write broke off", extra={"setup_id": setup_id, "slot": slot, "reason": str(exc)})
-            reconcile(session, row, controller, machine.id, actor)  # did anything arrive?
+
+        def target(before: WorkOffset | None, empty: str) -> WorkOffset:
+            why = change_reason(offset, before, empty, slot, settings)
+            if why and not acknowledge_change:
+                row.before = before.as_dict() if before is not None else None
+                _settle(session, row, "failed", f"refused, nothing written: {why}", actor, machine.id)
+                refused = Conflict(why)
+                refused.audited = True  # the row and its export.failed entry say it already
+                raise refused
+            return offset
+
+        def writing(before: WorkOffset | None, new: WorkOffset) -> None:
+            row.status, row.written, row.updated_at = "writing", new.as_dict(), utcnow()
+            row.before = before.as_dict() if before is not None else None
+            session.add(row)
+
+        verdict = guarded_write(session, controller, slot=slot, actor=actor, action="export", ids=ids,
+                                target=target, unreachable=unreachable, writing=writing)
+        _settle_verdict(session, row, verdict, actor, machine.id)
+        if verdict.error is not None:  # the write broke off; the read-back said whether it arrived
             if row.status == "failed":
-                row.reason = f"export to {slot} failed: {exc}; {row.reason}"
+                row.reason = f"export to {slot} failed: {verdict.error}; {row.reason}"
                 session.add(row)
                 session.commit()
             events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": row.reason})
             if row.status != "written":
                 raise Unavailable(f"export to {slot} {'failed' if row.status == 'failed' else 'broke off'}: "
-                                  f"{exc}; status {row.status}: {row.reason}") from None
+                                  f"{verdict.error}; status {row.status}: {row.reason}")
             return row
-        reconcile(session, row, controller, machine.id, actor)  # the read-back decides written / failed
         if row.status == "written":
             events.publish("offset.exported", {"setup_id": setup_id, "machine_id": machine.id, "slot": slot,
                                                "written": row.written, "read_back": row.read_back})
@@ -296,16 +265,33 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
         controller.close()
 
 
+def change_reason(offset: WorkOffset, before: WorkOffset | None, empty: str, slot: str, settings) -> str:
+    """Why writing ``offset`` over ``before`` needs the operator's acknowledgement ("" when it does not):
+    the slot holds nothing yet (``empty``: the controller's sentence), or the change exceeds the limits."""
+    if before is None:
+        # nothing to show side by side: the first write to a slot is acknowledged like a large change
+        return (f"{empty}, so there is no current {slot} to compare the change with; check the new values "
+                "and export again with acknowledge_change=true")
+    d_mm, d_deg = offset.difference(before)
+    if d_mm > settings.max_offset_change_mm or d_deg > settings.max_offset_change_deg:
+        return (f"the new {slot} differs from the controller's current one by {d_mm:.3f} mm / "
+                f"{d_deg:.3f}° (limits {settings.max_offset_change_mm} mm / "
+                f"{settings.max_offset_change_deg}°); compare them and export again with "
+                "acknowledge_change=true if this is intended")
+    return ""
+
+
+def list_exports(session: Session, setup_id: int) -> list[Export]:
+    """Every export of a setup, oldest first (NotFound for an unknown setup)."""
+    get_setup(session, setup_id)
+    return list(session.exec(select(Export).where(Export.setup_id == setup_id).order_by(Export.id)).all())
+
+
 def read_current_offset(session: Session, machine_id: int, slot: str) -> WorkOffset:
     """The controller's offset now (for the side-by-side comparison on the page)."""
     machine = get_machine(session, machine_id)
-    try:
-        slot_number(slot)
-    except ValueError as exc:
-        raise Invalid(str(exc)) from None
-    if not machine.controller:
-        raise Invalid(f"machine {machine.id} ({machine.name}) has no controller configured")
-    controller = make_controller(machine.controller)
+    slot = check_slot(slot)
+    controller = open_controller(machine)
     try:
         return controller.read_offset(slot)
     except NoOffsetYet as exc:

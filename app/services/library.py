@@ -19,7 +19,9 @@ from sqlmodel import Session, col, func, select
 
 from app.geometry import mesh as meshlib
 from app.geometry.fiducial_layout import parse_layout
+from app.geometry.library_manifest import load_library_manifest
 from app.geometry.support_surfaces import check_within_bounds, parse_support_surfaces
+from app.geometry.thumbnail import render_thumbnail
 from app.geometry.transforms import PoseError, check_pose
 from app.services.errors import Invalid, NotFound, TooLarge
 from app.store.files import FileStore
@@ -117,7 +119,6 @@ def _process_geometry(files: FileStore, session: Session, data: bytes, filename:
     except meshlib.MeshError as exc:
         raise (TooLarge if getattr(exc, "status", 422) == 413 else Invalid)(str(exc)) from None
     glb = meshlib.to_glb(mesh)
-    from app.geometry.thumbnail import render_thumbnail  # software renderer; imported lazily
 
     return {
         "source_sha256": files.put(session, data, "application/octet-stream"),
@@ -252,7 +253,6 @@ def load_example_library(session: Session, files: FileStore, library_dir: Path) 
     if not manifest.exists():
         log.warning("example library not found at %s", manifest)
         return []
-    from app.geometry.library_manifest import load_library_manifest
 
     added, updated = [], []
     for entry in load_library_manifest(Path(library_dir)):

@@ -8,6 +8,7 @@ from typing import Any
 from sqlmodel import Session, col, select
 
 from app.geometry.transforms import PoseError, check_pose
+from app.machine import parse_controller_settings
 from app.services import library
 from app.services.errors import Invalid, NotFound
 from app.store.models import Camera, Machine, utcnow
@@ -48,8 +49,6 @@ def keep_masked_secrets(new: dict | None, old: dict | None) -> dict | None:
 
 
 def validate_controller(controller: dict | None) -> dict | None:
-    from app.machine import parse_controller_settings
-
     if controller is None:
         return None
     try:

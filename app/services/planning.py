@@ -6,46 +6,74 @@ inflated by their uncertainty) from a setup and turns planner errors into 422 an
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlmodel import Session
+from sqlmodel import Session, select
 
-from app.services.errors import Conflict, Invalid
-from app.services.setups import _candidates, get_setup
+from app.config import get_settings
+from app.geometry.mesh import load_mesh
+from app.geometry.transforms import inv, transform_points
+from app.machine import ControllerError, SLOT_P_NUMBERS, WorkOffset, make_controller, parse_controller_settings
+from app.machine.nc_files import DIALECTS, SLOTS
+from app.planning.probing import ProbingParams, choose_touch_points, parse_probe_results, refine_offset
+from app.planning.probing_safety import (ProbingRefused, assumed_in_zones, assumed_unlocated, drawn_zones,
+                                         plan_probing_program, table_z_max_mm)
+from app.planning.request import plan_request
+from app.services import library
+from app.services.errors import Conflict, Invalid, Unavailable
+from app.services.export import plausibility, require_confirmed
+from app.services.machines import get_machine
+from app.services.setup_result import LocatedObject
+from app.services.setups import get_setup, library_candidates, revise, setup_result
 from app.store.files import FileStore
+from app.store.models import Export
 
 
-def setup_scene(session: Session, files: FileStore, setup_id: int) -> tuple[list, list, list, float, dict]:
-    """(meshes, T_table_obj poses, names, largest 1-sigma in mm, workpiece entry) of a located setup."""
+@dataclass
+class Scene:
+    """The located objects of a setup that have a library model, in one order: their meshes (model frame,
+    mm), poses ``T_table_obj`` (4x4, mm) and names; the largest translational 1-sigma of them (mm); the
+    first workpiece, its index in these lists and in the result's objects (None without one)."""
+
+    meshes: list
+    poses: list[np.ndarray]
+    names: list[str]
+    sigma_mm: float
+    workpiece: LocatedObject | None
+    workpiece_index: int | None
+    workpiece_result_index: int | None = None
+
+
+def setup_scene(session: Session, files: FileStore, setup_id: int) -> Scene:
+    """The :class:`Scene` of a located setup."""
     s = get_setup(session, setup_id)
     if s.status != "located" or not s.result:
         raise Invalid(f"setup {setup_id} is {s.status}; paths need a located setup")
-    objs = [o for o in s.result.get("objects", []) if o.get("model_id")]
-    cands = {(c.model_id, c.revision): c for c in _candidates(
-        session, files, [{"model_id": o["model_id"], "revision": o["revision"]} for o in objs])}
-    meshes, poses, names, sig = [], [], [], 0.0
+    result = setup_result(s)
+    at = [i for i, o in enumerate(result.objects) if o.model_id]  # index in the result
+    objs = [result.objects[i] for i in at]
+    cands = {(c.model_id, c.revision): c for c in library_candidates(
+        session, files, [{"model_id": o.model_id, "revision": o.revision} for o in objs])}
+    sig = 0.0
     for o in objs:
-        meshes.append(cands[(o["model_id"], o["revision"])].mesh)
-        poses.append(np.asarray(o["T_table_obj"]))
-        names.append(o["name"])
-        s_xyz = [v for k, v in (o.get("sigma") or {}).items() if k.endswith("_mm") and v is not None]
-        sig = max([sig, *s_xyz])
-    wp = next((o for o in objs if o.get("kind") == "workpiece"), None)
-    return meshes, poses, names, sig, wp
+        sig = max([sig, *(v for k, v in o.sigma.items() if k.endswith("_mm") and v is not None)])
+    wi = next((i for i, o in enumerate(objs) if o.kind == "workpiece"), None)
+    return Scene([cands[(o.model_id, o.revision)].mesh for o in objs], [o.pose for o in objs],
+                 [o.name for o in objs], sig, None if wi is None else objs[wi], wi, None if wi is None else at[wi])
 
 
 def plan(session: Session, files: FileStore, request: dict[str, Any]) -> dict:
     """Plan a path for a REST request; ``obstacles: {"setup_id": n}`` uses that setup's located scene."""
-    from app.planning.request import plan_request
-
     req = dict(request)
     ob = req.get("obstacles")
     if isinstance(ob, dict) and "meshes" in ob:
         raise Invalid("obstacles.meshes with file paths is for the CLI; over REST give setup_id, regions, "
                       "part_top_mm or per_move_mm")
     if isinstance(ob, dict) and "setup_id" in ob:
-        meshes, poses, names, sig, _ = setup_scene(session, files, int(ob["setup_id"]))
+        scene = setup_scene(session, files, int(ob["setup_id"]))
+        meshes, poses, names, sig = scene.meshes, scene.poses, scene.names, scene.sigma_mm
         if not meshes:
             raise Invalid(f"setup {ob['setup_id']} has no located objects to plan around")
         req["obstacles"] = {"meshes": [{"mesh": m, "T_table_obj": p.tolist(), "name": n}
@@ -68,9 +96,6 @@ def controller_slots(controller: dict | None, dialect: str) -> tuple[str, ...]:
     """Work-offset slots the machine's controller holds (a closed set): a file controller's dialect's
     slots, an OPC UA controller's one slot unless its node ids carry {slot}/{p}, LinuxCNC's nine; without
     a controller, the slots of the requested dialect."""
-    from app.machine import SLOT_P_NUMBERS, parse_controller_settings
-    from app.machine.nc_files import SLOTS
-
     if not controller:
         return SLOTS.get(dialect, ())
     c = parse_controller_settings(controller)
@@ -85,8 +110,6 @@ def controller_slots(controller: dict | None, dialect: str) -> tuple[str, ...]:
 def check_program_params(machine, *, dialect: str, wcs: str, clearance_mm: float) -> tuple[str, str, float]:
     """(dialect, slot, clearance) from the closed sets, or Invalid with a reason code: unknown_dialect,
     dialect_not_supported, dialect_mismatch, wcs_not_a_slot, clearance_out_of_range."""
-    from app.machine.nc_files import DIALECTS
-
     d = str(dialect).lower()
     if d not in DIALECTS:
         raise Invalid(f"dialect {dialect!r} is unknown; use one of {', '.join(DIALECTS)}", code="unknown_dialect")
@@ -120,9 +143,6 @@ def probing_program(session: Session, files: FileStore, settings, setup_id: int,
 
 def _unlocated(session: Session, files: FileStore, s) -> list[tuple[str, float]]:
     """(name, height as modelled in mm) of every object asked for but not located."""
-    from app.geometry.mesh import load_mesh
-    from app.services import library
-
     asked = {int(m["model_id"]): m.get("revision") for m in (s.models or [])}
     out = []
     for nf in (s.result or {}).get("not_found") or []:
@@ -139,9 +159,6 @@ def _unlocated(session: Session, files: FileStore, s) -> list[tuple[str, float]]
 
 def _table_xy(session: Session, files: FileStore, machine) -> tuple[float, float, float, float]:
     """The table model's xy bounds in the table frame (mm)."""
-    from app.geometry.mesh import load_mesh
-    from app.services import library
-
     rev = library.get_revision(session, machine.table_model_id, machine.table_revision)
     b = load_mesh(files.read(rev.glb_sha256), "model.glb", "mm").bounds
     return float(b[0, 0]), float(b[0, 1]), float(b[1, 0]), float(b[1, 1])
@@ -150,12 +167,6 @@ def _table_xy(session: Session, files: FileStore, machine) -> tuple[float, float
 def _frame_of(session: Session, machine, s, slot: str, off: dict) -> str:
     """The header's frame sentence; with a live controller, Conflict unless a verified export of this
     revision to ``slot`` exists and the controller holds it now (read back)."""
-    from sqlmodel import select
-
-    from app.machine import ControllerError, WorkOffset, make_controller
-    from app.services.errors import Unavailable
-    from app.store.models import Export
-
     want = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"])
     what = (f"{slot} = datum of {off.get('object')}, setup {s.id} revision {s.result_revision}: {want} "
             "(machine coordinates)")
@@ -193,21 +204,7 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
     blocked, retract height and every move inside the travel); the frame (with a live controller:
     a verified export of this revision, read back now; ``check_frame=False`` skips that for drawing the
     plan, and ``settings=None`` takes the process's settings)."""
-    from app.geometry.transforms import transform_points
-    from app.planning.probing_safety import (
-        ProbingRefused,
-        assumed_in_zones,
-        assumed_unlocated,
-        drawn_zones,
-        plan_probing_program,
-        table_z_max_mm,
-    )
-    from app.services.export import plausibility, require_confirmed
-    from app.services.machines import get_machine
-
     if settings is None:
-        from app.config import get_settings
-
         settings = get_settings()
     s = get_setup(session, setup_id)
     machine = get_machine(session, s.machine_id)
@@ -221,7 +218,8 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
             raise Invalid(str(exc), code="no_go_invalid") from None
     require_confirmed(s, "probed")
     _, off = plausibility(s, machine, settings, use="probing program")
-    meshes, poses, names, sig, wp = setup_scene(session, files, setup_id)
+    scene = setup_scene(session, files, setup_id)
+    meshes, poses, names, sig, wp = scene.meshes, scene.poses, scene.names, scene.sigma_mm, scene.workpiece
     if wp is None:
         raise Invalid(f"setup {setup_id} has no located workpiece to probe", code="no_workpiece")
     unlocated = _unlocated(session, files, s)
@@ -241,8 +239,7 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
              else f"{slot} = datum of {off.get('object')} (drawing only, not read back)")
     try:
         return plan_probing_program(
-            meshes, poses, names, names.index(wp["name"]),
-            np.asarray(wp["T_obj_datum"]) if wp.get("T_obj_datum") else np.eye(4),
+            meshes, poses, names, scene.workpiece_index, wp.datum,
             sigma_mm=sig, assumed=assumed, T_machine_table=np.asarray(machine.T_machine_table, dtype=float),
             travel_mm=machine.travel_mm, T_prog_table=program_frame(machine, off), slot=slot, clearance_mm=clearance,
             dry_run=dry_run, frame_text=frame, title=f"setupcam probing, setup {setup_id}",
@@ -254,23 +251,17 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
 def program_frame(machine, off: dict) -> np.ndarray:
     """``T_prog_table``: the frame the export writes into the slot, X, Y, Z, C of the datum in machine
     coordinates (its small tilt dropped, as the export drops it), seen from the table frame."""
-    from app.geometry.transforms import inv
-    from app.machine import WorkOffset
-
     T_machine_prog = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"]).to_pose()
     return inv(T_machine_prog) @ np.asarray(machine.T_machine_table, dtype=float)
 
 
 def _touches(session: Session, files: FileStore, setup_id: int):
-    from app.planning.probing import ProbingParams, choose_touch_points
-
-    meshes, poses, names, sig, wp = setup_scene(session, files, setup_id)
+    scene = setup_scene(session, files, setup_id)
+    wp, i = scene.workpiece, scene.workpiece_index
     if wp is None:
         raise Invalid(f"setup {setup_id} has no located workpiece to probe")
-    i = names.index(wp["name"])
-    datum = np.asarray(wp["T_obj_datum"]) if wp.get("T_obj_datum") else np.eye(4)
     params = ProbingParams()
-    return choose_touch_points(meshes[i], poses[i], datum, params), params, wp, datum
+    return choose_touch_points(scene.meshes[i], scene.poses[i], wp.datum, params), params, scene
 
 
 #: what a touch may differ from the truth besides the located error (probe repeatability, rounding), mm
@@ -291,19 +282,15 @@ def apply_probe_results(session: Session, files: FileStore, settings, setup_id: 
     measured face's distance from where the confirmed pose put it) beyond ``probe_expected_mm``
     (3 sigma of the confirmed pose + PROBE_TOLERANCE_MM) also marks the result FAIL, with the refined
     pose kept: the localisation was wrong by more than it stated (adjusting accepts it)."""
-    from app.geometry.transforms import inv, transform_points
-    from app.planning.probing import parse_probe_results, refine_offset
-    from app.services.machines import get_machine
-    from app.services.setups import _new_revision, review_fields
-
     s = get_setup(session, setup_id)
     if s.confirmed_revision is None or s.confirmed_revision != s.result_revision:
         raise Conflict(f"setup {setup_id}: probe results belong to the confirmed revision the program was made "
                        "from; confirm, generate the program, probe, then send the results")
     try:
         tips = parse_probe_results(text)
-        touches, params, wp, datum = _touches(session, files, setup_id)
-        T_table_datum = np.asarray(wp["T_table_obj"]) @ datum
+        touches, params, scene = _touches(session, files, setup_id)
+        wp, datum = scene.workpiece, scene.workpiece.datum
+        T_table_datum = wp.pose @ datum
         off = (s.result or {}).get("offset") or {}
         if not off:
             raise ValueError("the setup has no workpiece offset, so no program frame")
@@ -321,38 +308,31 @@ def apply_probe_results(session: Session, files: FileStore, settings, setup_id: 
     tips_table = transform_points(inv(T_prog_table), tips)
     deviation = [float(np.dot(np.asarray(t.normal), tip + [0, 0, params.ball_radius_mm] - np.asarray(t.contact))
                        - params.ball_radius_mm) for t, tip in zip(touches, tips_table)]
-    sig = wp.get("sigma") or {}
+    sig = wp.sigma
     expected = 3.0 * max(float(sig.get(k) or 0.0) for k in ("x_mm", "y_mm", "z_mm")) + PROBE_TOLERANCE_MM
     off_by = max(abs(v) for v in deviation)
     beyond = off_by > expected  # the pose was wrong by more than it said: the probe is right, the result FAIL
     T_fit = ref.T_table_datum @ np.linalg.inv(datum)
-    T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
     worst = float(np.max(np.abs(ref.residuals_mm))) if ref.residuals_mm else 0.0
-    objs = []
-    for o in s.result["objects"]:
-        if o is wp or o["name"] == wp["name"]:
-            before = {"T_table_obj": o["T_table_obj"], "sigma": o.get("sigma")}
-            o = {k: v for k, v in o.items() if k != "probe_fail"}
-            o.update({"probed": True, "probe_before": before, "probe_residuals_mm": list(ref.residuals_mm),
-                      "probe_deviation_mm": deviation, "probe_expected_mm": expected})
-            if beyond and not failed:
-                o["probe_fail"] = (f"a touch found the part {off_by:.3f} mm from the confirmed pose, beyond its "
-                                   f"expected error {expected:.3f} mm (3 sigma + {PROBE_TOLERANCE_MM} mm): the "
-                                   "localisation understated its error; check the setup, adjust to accept")
-            if failed:
-                o.update({"probe_fail": ref.reason, "probe_fit_T_table_obj": T_fit.tolist(),
-                          "flags": [*o.get("flags", []), "probing FAIL"]})
-            else:  # the refined pose (also when it is FAIL for being far from the confirmed one)
-                o.update({"T_table_obj": T_fit.tolist(), "T_cam_obj": (T_cam_table @ T_fit).tolist(),
-                          "sigma": {**(o.get("sigma") or {}), "x_mm": max(worst, 0.005), "y_mm": max(worst, 0.005),
-                                    "z_mm": max(worst, 0.005)},
-                          "flags": [*o.get("flags", []), "refined by probing"]})
-        objs.append(o)
-    result = review_fields({**s.result, "objects": objs}, machine, settings)
+    result = setup_result(s)
+    index = scene.workpiece_result_index
+    o = result.objects[index].model_copy(deep=True)
+    o.clear_probe_fail()
+    o.probed, o.probe_before = True, {"T_table_obj": wp.T_table_obj, "sigma": wp.sigma}
+    o.probe_residuals_mm, o.probe_deviation_mm, o.probe_expected_mm = list(ref.residuals_mm), deviation, expected
+    if beyond and not failed:
+        o.probe_fail = (f"a touch found the part {off_by:.3f} mm from the confirmed pose, beyond its "
+                        f"expected error {expected:.3f} mm (3 sigma + {PROBE_TOLERANCE_MM} mm): the "
+                        "localisation understated its error; check the setup, adjust to accept")
+    if failed:
+        o.probe_fail, o.probe_fit_T_table_obj = ref.reason, T_fit.tolist()
+        o.flags = [*o.flags, "probing FAIL"]
+    else:  # the refined pose (also when it is FAIL for being far from the confirmed one)
+        o = o.moved_to(T_fit, sigma={**o.sigma, "x_mm": max(worst, 0.005), "y_mm": max(worst, 0.005),
+                                     "z_mm": max(worst, 0.005)},
+                       flags=[*o.flags, "refined by probing"])
     what = (f"probing FAIL: {ref.reason}" if failed else
             f"refined by probing, FAIL: {off_by:.3f} mm off > {expected:.3f} mm" if beyond else "refined by probing")
-    _new_revision(s, result, f"{what} (dx {ref.dx_mm:+.3f}, dy {ref.dy_mm:+.3f}, dz {ref.dz_mm:+.3f} mm, "
-                             f"dC {ref.dc_deg:+.4f} deg)", by)
-    session.add(s)
-    session.flush()
-    return s
+    return revise(session, files, settings, s, result.replace(index, o),
+                  note=f"{what} (dx {ref.dx_mm:+.3f}, dy {ref.dy_mm:+.3f}, dz {ref.dz_mm:+.3f} mm, "
+                       f"dC {ref.dc_deg:+.4f} deg)", by=by, action="setup.probe_results", object_index=index)

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
-import tempfile
-from pathlib import Path
-
 from sqlmodel import Session, col, select
 
-from app.services.cameras import decode_image, get_camera
+from app.services.cameras import read_image, get_camera
 from app.services.errors import Invalid, NotFound
+from app.machine.compensation import fanuc_pitch_proposal, heidenhain_com_proposal
 from app.store.files import FileStore
 from app.store.models import RotaryRun
+from app.vision.intrinsics import parse_intrinsics
+from app.vision.rotary import measure_run
+from app.vision.rotary_report import Iso230Report, correction_grid, report_files
+from app.vision.rotary_target import TargetError, default_target, target_from_dict
 
 MEDIA = {".csv": "text/csv", ".png": "image/png", ".svg": "image/svg+xml", ".com": "text/plain", ".txt": "text/plain"}
 
@@ -18,11 +20,6 @@ MEDIA = {".csv": "text/csv", ".png": "image/png", ".svg": "image/svg+xml", ".com
 def run_rotary(session: Session, files: FileStore, *, camera_id: int, images: list[tuple[str, bytes]],
                angles_deg: list[float], target: dict | None, method: str = "direct",
                directions: list[int] | None = None, axis_name: str = "C", by: str | None = None) -> RotaryRun:
-    from app.vision.intrinsics import parse_intrinsics
-    from app.vision.rotary import measure_run
-    from app.vision.rotary_report import write_report
-    from app.vision.rotary_target import TargetError, default_target, target_from_dict
-
     cam = get_camera(session, camera_id)
     if not cam.intrinsics:
         raise Invalid(f"camera {cam.id} ({cam.name}) has no intrinsics; calibrate it first")
@@ -38,7 +35,7 @@ def run_rotary(session: Session, files: FileStore, *, camera_id: int, images: li
         tgt = target_from_dict(target) if target else default_target()
     except TargetError as exc:
         raise Invalid(f"target: {exc}") from None
-    decoded = [decode_image(data, f"image {name!r}") for name, data in images]
+    decoded = [read_image(data, f"image {name!r}") for name, data in images]
     w, h = cam.intrinsics["width"], cam.intrinsics["height"]
     for (name, _), img in zip(images, decoded):
         if (img.shape[1], img.shape[0]) != (w, h):
@@ -49,15 +46,30 @@ def run_rotary(session: Session, files: FileStore, *, camera_id: int, images: li
                     image_sha256=[files.put(session, d, "image/jpeg") for _, d in images], ok=result.ok,
                     reason=result.reason, result=result.to_dict(), created_by=by)
     if result.ok:
-        with tempfile.TemporaryDirectory() as tmp:
-            report, paths = write_report(tmp, result.angles_deg, result.measured_deg, result.error_arcsec,
-                                         directions, axis_name=axis_name)
-            run.report = report.to_dict()
-            run.files = {p.name: files.put(session, Path(p).read_bytes(), MEDIA.get(Path(p).suffix.lower(), "text/plain"))
-                         for p in paths}
+        report, named = rotary_report(result.angles_deg, result.measured_deg, result.error_arcsec, directions,
+                                      axis_name)
+        run.report = report.to_dict()
+        run.files = {name: files.put(session, data, media_type_of(name)) for name, data in named.items()}
     session.add(run)
     session.flush()
     return run
+
+
+def media_type_of(name: str) -> str:
+    """The media type of a report file, from its name's suffix (text/plain when unknown)."""
+    return MEDIA.get("." + name.rsplit(".", 1)[-1].lower(), "text/plain")
+
+
+def rotary_report(angles_deg, measured_deg, error_arcsec, directions=None,
+                  axis_name: str = "C") -> tuple[Iso230Report, dict[str, bytes]]:
+    """The ISO 230-2 report of a run and its files as bytes: run.csv, positions.csv, error.svg, error.png
+    and the compensation-table proposals ``<axis>_proposal.COM`` (HEIDENHAIN) and
+    ``fanuc_pitch_proposal.txt`` (the CLI writes them to a folder, the service stores them)."""
+    report, named = report_files(angles_deg, measured_deg, error_arcsec, directions)
+    grid = correction_grid(report)
+    named[f"{axis_name}_proposal.COM"] = heidenhain_com_proposal(*grid, axis=axis_name).encode()
+    named["fanuc_pitch_proposal.txt"] = fanuc_pitch_proposal(*grid).encode()
+    return report, named
 
 
 def get_run(session: Session, run_id: int) -> RotaryRun:

@@ -14,15 +14,21 @@ import cv2
 import numpy as np
 from sqlmodel import Session, col, select
 
+from app.geometry.mesh import load_mesh
+from app.geometry.transforms import PoseError, check_pose, make_pose, pose_from_xyz_euler
+from app.geometry.work_offset import work_offset_from_poses
 from app.services import library
 from app.services.audit import audit
-from app.services.cameras import decode_image, get_camera, grab_frame
+from app.services.cameras import read_image, get_camera, grab_frame, image_media_type
 from app.services.errors import Conflict, Invalid, NotFound
 from app.services.jobs import JobContext
 from app.services.machines import get_machine
+from app.services.setup_result import LocatedObject, SetupResult
 from app.store.db import session_scope
 from app.store.files import FileStore
 from app.store.models import Capture, Setup, utcnow
+from app.vision import object_pose
+from app.vision.localize import Candidate, draw_pose_overlay, localize, marker_labels_table, object_entry
 
 log = logging.getLogger(__name__)
 
@@ -64,12 +70,12 @@ def create_setup(session: Session, files: FileStore, *, machine_id: int, camera_
         frame, origin = grab_frame(cam), "grab"
         data = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
     else:
-        frame, origin, data = decode_image(image), "upload", image
+        frame, origin, data = read_image(image), "upload", image
     h, w = frame.shape[:2]
     if (w, h) != (cam.intrinsics["width"], cam.intrinsics["height"]):
         raise Invalid(f"image is {w} x {h} px but camera {cam.id} is calibrated for "
                       f"{cam.intrinsics['width']} x {cam.intrinsics['height']} px")
-    cap = Capture(camera_id=cam.id, image_sha256=files.put(session, data, "image/jpeg"), width=w, height=h,
+    cap = Capture(camera_id=cam.id, image_sha256=files.put(session, data, image_media_type(data)), width=w, height=h,
                   origin=origin)
     session.add(cap)
     session.flush()
@@ -116,12 +122,9 @@ def _append_stage(ctx: JobContext, setup_id: int, record: dict) -> None:
         session.add(s)
 
 
-def _candidates(session: Session, files: FileStore, model_refs: list[dict]) -> list:
+def library_candidates(session: Session, files: FileStore, model_refs: list[dict]) -> list:
     """Library models to look for: the ones asked for, else every workpiece, clamp and support
     (recognition). Fixtures carry their declared support surfaces (None: derived from the mesh)."""
-    from app.geometry.mesh import load_mesh
-    from app.vision.localize import Candidate
-
     if not model_refs:
         rows, _ = library.list_models(session, limit=500)
         model_refs = [{"model_id": m.id, "revision": m.current_revision} for m in rows
@@ -146,8 +149,6 @@ def _candidates(session: Session, files: FileStore, model_refs: list[dict]) -> l
 
 def run_setup_job(ctx: JobContext, setup_id: int) -> None:
     """The job: localise table and objects in the stored capture; record stages; end located or failed."""
-    from app.vision.localize import localize
-
     with session_scope(ctx.engine) as session:
         s = get_setup(session, setup_id)
         if s.status in FINAL:
@@ -156,10 +157,10 @@ def run_setup_job(ctx: JobContext, setup_id: int) -> None:
         table_rev = library.get_revision(session, machine.table_model_id, machine.table_revision)
         layout = table_rev.fiducials
         capture = session.get(Capture, s.capture_id)
-        image = decode_image(ctx.files.read(capture.image_sha256))
+        image = read_image(ctx.files.read(capture.image_sha256))
         recognise = not s.models
-        candidates = _candidates(session, ctx.files, s.models)
-        (table,) = _candidates(session, ctx.files, [{"model_id": machine.table_model_id, "revision": table_rev.revision}])
+        candidates = library_candidates(session, ctx.files, s.models)
+        (table,) = library_candidates(session, ctx.files, [{"model_id": machine.table_model_id, "revision": table_rev.revision}])
         intr = s.intrinsics
     _update(ctx, setup_id, status="running", stages=[], reason="")
     log.info("setup running", extra={"setup_id": setup_id, "candidates": len(candidates)})
@@ -203,9 +204,9 @@ def table_obj_summary(result: dict) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------ review: offset, adjust, confirm
-def uncertainty_check(obj: dict, max_sigma_mm: float, max_sigma_deg: float) -> tuple[bool, str]:
+def uncertainty_check(obj: LocatedObject, max_sigma_mm: float, max_sigma_deg: float) -> tuple[bool, str]:
     """Pass/fail of one object's 1-sigma against the tolerances, with the reason when it fails."""
-    s = obj.get("sigma") or {}
+    s = obj.sigma
     worst = []
     for k in ("x_mm", "y_mm", "z_mm"):
         v = s.get(k)
@@ -219,51 +220,35 @@ def uncertainty_check(obj: dict, max_sigma_mm: float, max_sigma_deg: float) -> t
     return (not worst, "; ".join(worst))
 
 
-def proposed_offset(result: dict, T_machine_table: list, max_tilt_deg: float) -> dict | None:
+def proposed_offset(result: SetupResult, T_machine_table: list, max_tilt_deg: float) -> dict | None:
     """The work offset of the first located workpiece: X, Y, Z, C (+ tilt) in machine coordinates."""
-    from app.geometry.work_offset import work_offset_from_poses
-
-    wp = next((o for o in result.get("objects", []) if o.get("kind") == "workpiece"), None)
+    wp = result.workpiece()
     if wp is None:
         return None
-    T_obj_datum = np.asarray(wp["T_obj_datum"]) if wp.get("T_obj_datum") else np.eye(4)
-    off = work_offset_from_poses(np.asarray(T_machine_table), np.asarray(wp["T_table_obj"]), T_obj_datum,
-                                 max_tilt_deg=max_tilt_deg)
-    out = {"object": wp["name"], "x_mm": off.x_mm, "y_mm": off.y_mm, "z_mm": off.z_mm, "c_deg": off.c_deg,
+    T_machine_table = np.asarray(T_machine_table)
+    off = work_offset_from_poses(T_machine_table, wp.pose, wp.datum, max_tilt_deg=max_tilt_deg)
+    out = {"object": wp.name, "x_mm": off.x_mm, "y_mm": off.y_mm, "z_mm": off.z_mm, "c_deg": off.c_deg,
            "a_deg": off.a_deg, "b_deg": off.b_deg, "tilt_deg": off.tilt_deg, "ok": off.ok, "reason": off.reason,
-           "T_machine_datum": off.T_machine_datum.tolist(), "datum_defined": bool(wp.get("T_obj_datum")),
-           "datum_ambiguous": bool(wp.get("datum_ambiguous")), "datum_note": wp.get("datum_note") or "",
-           "datum_choices": []}
-    if datum_undecided(wp):  # the offset each equivalent pose would give: the operator picks one
-        for T in datum_candidates(wp):
-            o = work_offset_from_poses(np.asarray(T_machine_table), T, T_obj_datum, max_tilt_deg=max_tilt_deg)
+           "T_machine_datum": off.T_machine_datum.tolist(), "datum_defined": bool(wp.T_obj_datum),
+           "datum_ambiguous": wp.datum_ambiguous, "datum_note": wp.datum_note or "", "datum_choices": []}
+    if wp.datum_undecided():  # the offset each equivalent pose would give: the operator picks one
+        for T in wp.datum_candidates():
+            o = work_offset_from_poses(T_machine_table, T, wp.datum, max_tilt_deg=max_tilt_deg)
             out["datum_choices"].append({"x_mm": o.x_mm, "y_mm": o.y_mm, "z_mm": o.z_mm, "c_deg": o.c_deg})
     return out
-
-
-def datum_candidates(obj: dict) -> list[np.ndarray]:
-    """The object's pose as located first, then every pose that looks the same in the image."""
-    return [np.asarray(obj["T_table_obj"])] + [np.asarray(T) for T in obj.get("equivalent_poses") or []]
-
-
-def datum_undecided(obj: dict) -> bool:
-    """Several listed poses fit equally and nobody has chosen one (a round part's free turn about
-    its axis lists none: its note says the angle is arbitrary, there is nothing to choose)."""
-    return bool(obj.get("datum_ambiguous")) and bool(obj.get("equivalent_poses"))
 
 
 MAX_POSITION_MM = 10_000.0  # no part sits 10 m from the table origin: a pose out there is a typo
 
 
-def adjustment_check(obj: dict, max_mm: float, max_deg: float) -> tuple[bool, str]:
+def adjustment_check(obj: LocatedObject, max_mm: float, max_deg: float) -> tuple[bool, str]:
     """Is an operator's move still covered by the fit? The 1-sigma describes the pose the fit found
     (``T_table_obj_fit``, table frame); a move of more than 3 sigma, or more than ``max_mm`` / ``max_deg``,
     along any axis leaves it: the object must be refined (fit again from there) before it may pass."""
-    fit = obj.get("T_table_obj_fit")
-    if fit is None:
+    if obj.T_table_obj_fit is None:
         return True, ""
-    T, F = np.asarray(obj["T_table_obj"], float), np.asarray(fit, float)
-    sigma = obj.get("sigma") or {}
+    T, F = obj.pose, np.asarray(obj.T_table_obj_fit, float)
+    sigma = obj.sigma
     reasons = []
     for i, axis in enumerate("xyz"):
         moved = float(T[i, 3] - F[i, 3])
@@ -285,27 +270,66 @@ def adjustment_check(obj: dict, max_mm: float, max_deg: float) -> tuple[bool, st
     return True, ""
 
 
-def review_fields(result: dict, machine, settings) -> dict:
-    """Add pass/fail per object and the proposed offset to a result (in place) and return it. An object
-    the operator moved away from its fitted pose fails until refined (``adjustment_check``)."""
-    for o in result.get("objects", []):
+def review(result: SetupResult, machine, settings) -> SetupResult:
+    """Pass/fail per object and the proposed offset, set on ``result`` (which is returned). An object the
+    operator moved away from its fitted pose fails until refined (``adjustment_check``); a probing FAIL
+    fails it until an operator adjusts it."""
+    for o in result.objects:
         ok, why = uncertainty_check(o, settings.max_sigma_mm, settings.max_sigma_deg)
         moved_ok, moved_why = adjustment_check(o, getattr(settings, "max_adjust_mm", 1.0),
                                                getattr(settings, "max_adjust_deg", 0.5))
         if not moved_ok:
             ok, why = False, "; ".join(w for w in (moved_why, why) if w)
-        if o.get("probe_fail"):  # probing showed the part does not sit as this pose says
-            ok, why = False, f"probing: {o['probe_fail']}"
-        o["uncertainty_pass"], o["uncertainty_reason"] = ok, why
-    result["offset"] = proposed_offset(result, machine.T_machine_table, settings.max_tilt_deg)
+        if o.probe_fail:  # probing showed the part does not sit as this pose says
+            ok, why = False, f"probing: {o.probe_fail}"
+        o.uncertainty_pass, o.uncertainty_reason = ok, why
+    result.offset = proposed_offset(result, machine.T_machine_table, settings.max_tilt_deg)
     return result
 
 
-def _new_revision(s: Setup, result: dict, note: str, by: str | None) -> None:
+def review_fields(result: dict, machine, settings) -> dict:
+    """:func:`review` of a result as its JSON dict (a fresh localisation, a stored result): the dict back."""
+    return review(SetupResult.load(result), machine, settings).dump()
+
+
+def setup_result(s: Setup) -> SetupResult:
+    """The typed result of a setup (empty when it has none yet)."""
+    return SetupResult.load(s.result)
+
+
+def captured_image(session: Session, files: FileStore, setup_id: int) -> tuple[bytes, str]:
+    """(bytes, media type as stored) of the image a setup was located in."""
+    sha = session.get(Capture, get_setup(session, setup_id).capture_id).image_sha256
+    return files.read(sha), files.media_type(session, sha)
+
+
+def picture_sha256(session: Session, s: Setup) -> str:
+    """The setup's picture to show: the overlay of its current result, else the image as taken."""
+    return (s.result or {}).get("overlay_sha256") or session.get(Capture, s.capture_id).image_sha256
+
+
+def revise(session: Session, files: FileStore, settings, s: Setup, result: SetupResult, *, note: str,
+           by: str | None, action: str, object_index: int, **detail: Any) -> Setup:
+    """The one way a located setup's result changes: every object's ``T_cam_obj`` set from its
+    ``T_table_obj``, the review (pass/fail, proposed offset), the overlay redrawn at the new poses, the
+    old revision kept in the history, revision n+1 (never confirmed: it must be confirmed again before
+    export), and ``action`` on the audit log with ``detail`` and the revised object's (``object_index``)
+    pose and review."""
+    result.place()
+    review(result, get_machine(session, s.machine_id), settings)
+    result.overlay_sha256 = _redraw(session, files, s, result)
+    result.note, result.revised_by = note, by
     s.history = [*s.history, {"revision": s.result_revision, "result": s.result}]
-    s.result = {**result, "note": note, "revised_by": by}
+    s.result = result.dump()
     s.result_revision += 1
     s.updated_at = utcnow()
+    session.add(s)
+    session.flush()
+    obj = result.objects[object_index]
+    audit(session, by or "?", action, setup_id=s.id, machine_id=s.machine_id, result_revision=s.result_revision,
+          object_index=object_index, T_table_obj=obj.T_table_obj, uncertainty_pass=obj.uncertainty_pass,
+          reason=obj.uncertainty_reason, **detail)
+    return s
 
 
 def _require_located(s: Setup) -> None:
@@ -313,23 +337,21 @@ def _require_located(s: Setup) -> None:
         raise Invalid(f"setup {s.id} is {s.status}; only a located setup can be adjusted or confirmed")
 
 
-def _located_objects(session: Session, setup_id: int, object_index: int) -> tuple[Setup, list[dict]]:
-    """A located setup and its result objects, ``object_index`` checked against them."""
+def _located_object(session: Session, setup_id: int, object_index: int) -> tuple[Setup, SetupResult, LocatedObject]:
+    """A located setup, its typed result and the object at ``object_index`` (checked against them)."""
     s = get_setup(session, setup_id)
     _require_located(s)
-    objs = s.result.get("objects", [])
-    if not 0 <= object_index < len(objs):
-        raise Invalid(f"object_index {object_index} out of range: setup {setup_id} has {len(objs)} objects")
-    return s, objs
+    result = setup_result(s)
+    if not 0 <= object_index < len(result.objects):
+        raise Invalid(f"object_index {object_index} out of range: setup {setup_id} has {len(result.objects)} objects")
+    return s, result, result.objects[object_index]
 
 
 def adjust_object(session: Session, files: FileStore, settings, setup_id: int, *, object_index: int,
                   T_table_obj: list | None = None, nudge: dict | None = None, by: str | None = None) -> Setup:
     """Operator adjustment: a new pose (or a nudge in table x/y/z mm and C deg) -> result revision n+1."""
-    from app.geometry.transforms import PoseError, check_pose, make_pose, pose_from_xyz_euler
-
-    s, objs = _located_objects(session, setup_id, object_index)
-    old = np.asarray(objs[object_index]["T_table_obj"])
+    s, result, before = _located_object(session, setup_id, object_index)
+    old = before.pose
     if (T_table_obj is None) == (nudge is None):
         raise Invalid("give either T_table_obj or nudge")
     if nudge is not None:
@@ -348,84 +370,63 @@ def adjust_object(session: Session, files: FileStore, settings, setup_id: int, *
     if np.max(np.abs(new[:3, 3])) > MAX_POSITION_MM:
         raise Invalid(f"T_table_obj: position {np.round(new[:3, 3], 1).tolist()} mm is more than "
                       f"{MAX_POSITION_MM / 1000:.0f} m from the table origin")
-    T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
-    before = objs[object_index]
     # the pose the fit found stays on record: the move away from it is what adjustment_check judges
-    fitted = before.get("T_table_obj_fit") or before["T_table_obj"]
-    obj = {**before, "T_table_obj": new.tolist(), "T_cam_obj": (T_cam_table @ new).tolist(),
-           "T_table_obj_fit": fitted, "adjusted": True, "score": None,
-           "flags": [*before.get("flags", []), "adjusted by operator"]}
-    obj.pop("probe_fail", None)  # a probing FAIL judged the old pose; the operator's pose is judged anew
-    result = {**s.result, "objects": [obj if i == object_index else o for i, o in enumerate(objs)]}
-    machine = get_machine(session, s.machine_id)
-    result = review_fields(result, machine, settings)
-    result["overlay_sha256"] = _redraw(session, files, s, result)
-    _new_revision(s, result, "adjusted", by)
-    session.add(s)
-    session.flush()
-    moved = result["objects"][object_index]
-    audit(session, by or "?", "setup.adjust", setup_id=s.id, machine_id=s.machine_id, object_index=object_index,
-          result_revision=s.result_revision, nudge=nudge, T_table_obj=moved["T_table_obj"],
-          uncertainty_pass=moved["uncertainty_pass"], reason=moved["uncertainty_reason"])
-    return s
+    fitted = before.T_table_obj_fit or before.T_table_obj
+    obj = before.moved_to(new, T_table_obj_fit=fitted, adjusted=True, score=None,
+                          flags=[*before.flags, "adjusted by operator"])
+    obj.clear_probe_fail()  # a probing FAIL judged the old pose; the operator's pose is judged anew
+    result = result.replace(object_index, obj)
+    return revise(session, files, settings, s, result, note="adjusted", by=by, action="setup.adjust",
+                  object_index=object_index, nudge=nudge)
 
 
-def _redraw(session: Session, files: FileStore, s: Setup, result: dict) -> str:
+def _redraw(session: Session, files: FileStore, s: Setup, result: SetupResult) -> str:
     """Overlay for a revised result: table markers from the stored table stage, objects at their poses."""
-    from app.vision.localize import draw_pose_overlay
-
     table_pic = next((st.get("image_sha256") for st in s.stages if st["name"] == "table markers"), None)
     sha = table_pic or session.get(Capture, s.capture_id).image_sha256
     base = cv2.imdecode(np.frombuffer(files.read(sha), np.uint8), cv2.IMREAD_COLOR)
-    cands = {(c.model_id, c.revision): c for c in _candidates(session, files, [
-        {"model_id": o["model_id"], "revision": o["revision"]} for o in result["objects"] if o.get("model_id")])}
+    cands = {(c.model_id, c.revision): c for c in library_candidates(session, files, [
+        {"model_id": o.model_id, "revision": o.revision} for o in result.objects if o.model_id])}
     K, dist = np.asarray(s.intrinsics["K"]), np.asarray(s.intrinsics["dist"])
-    pic = draw_pose_overlay(base, K, dist, result, cands)
+    pic = draw_pose_overlay(base, K, dist, result.dump(), cands)
     return files.put(session, png_bytes(pic), "image/png")
 
 
 def choose_datum(session: Session, files: FileStore, settings, setup_id: int, *, object_index: int,
                  choice: int, by: str | None = None) -> Setup:
     """The operator says which of the equivalent poses is meant (0 = the pose as located) -> revision n+1."""
-    s, objs = _located_objects(session, setup_id, object_index)
-    obj = objs[object_index]
-    cands = datum_candidates(obj)
+    s, result, obj = _located_object(session, setup_id, object_index)
+    cands = obj.datum_candidates()
     if len(cands) < 2:
-        raise Invalid(f"{obj['name']} has no equivalent poses to choose from")
+        raise Invalid(f"{obj.name} has no equivalent poses to choose from")
     if not 0 <= choice < len(cands):
-        raise Invalid(f"choice {choice} out of range: {obj['name']} has {len(cands)} equivalent poses (0..{len(cands) - 1})")
-    T = cands[choice]
-    T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
-    entry = {**obj, "T_table_obj": T.tolist(), "T_cam_obj": (T_cam_table @ T).tolist(),
-             "equivalent_poses": [c.tolist() for i, c in enumerate(cands) if i != choice],
-             "datum_ambiguous": False,
-             "datum_note": f"datum chosen by {by or 'the operator'}: pose {choice + 1} of {len(cands)} "
-                           f"(the image could not decide: {obj.get('datum_note', '')})",
-             "flags": [f for f in obj.get("flags", []) if f != "datum_ambiguous"] + ["datum chosen by operator"]}
+        raise Invalid(f"choice {choice} out of range: {obj.name} has {len(cands)} equivalent poses (0..{len(cands) - 1})")
+    entry = obj.moved_to(
+        cands[choice], equivalent_poses=[c.tolist() for i, c in enumerate(cands) if i != choice],
+        datum_ambiguous=False,
+        datum_note=f"datum chosen by {by or 'the operator'}: pose {choice + 1} of {len(cands)} "
+                   f"(the image could not decide: {obj.datum_note})",
+        flags=[f for f in obj.flags if f != "datum_ambiguous"] + ["datum chosen by operator"])
     if choice > 0:  # an equivalent pose of the fit is a fitted pose (the image fits it as well): nothing moved
-        entry.pop("T_table_obj_fit", None)
-    result = {**s.result, "objects": [entry if i == object_index else o for i, o in enumerate(objs)]}
-    result = review_fields(result, get_machine(session, s.machine_id), settings)
-    result["overlay_sha256"] = _redraw(session, files, s, result)
-    _new_revision(s, result, f"datum chosen: pose {choice + 1} of {len(cands)}", by)
-    session.add(s)
-    session.flush()
-    audit(session, by or "?", "setup.datum", setup_id=s.id, machine_id=s.machine_id, object_index=object_index,
-          choice=choice, result_revision=s.result_revision)
-    return s
+        entry.T_table_obj_fit = None
+        entry.model_fields_set.discard("T_table_obj_fit")
+    return revise(session, files, settings, s, result.replace(object_index, entry),
+                  note=f"datum chosen: pose {choice + 1} of {len(cands)}", by=by, action="setup.datum",
+                  object_index=object_index, choice=choice)
 
 
-def confirm_setup(session: Session, setup_id: int, *, result_revision: int, by: str) -> Setup:
+def confirm_setup(session: Session, setup_id: int, *, result_revision: int, by: str, events=None) -> Setup:
     """Record who confirmed which exact result revision, and when. Only that revision may be exported.
-    Refused while a workpiece's datum is undecided (never chosen silently)."""
+    Refused while a workpiece's datum is undecided (never chosen silently). With ``events`` the
+    confirmation is committed, then published as ``setup.confirmed``."""
     s = get_setup(session, setup_id)
     _require_located(s)
     if result_revision != s.result_revision:
         raise Conflict(f"result revision {result_revision} is not the current one ({s.result_revision}); "
                        "reload the setup and confirm what you see")
-    for o in s.result.get("objects", []):
-        if o.get("kind") == "workpiece" and datum_undecided(o):
-            raise Conflict(f"the datum of {o['name']} is not decided: {len(datum_candidates(o))} poses look the "
+    for o in setup_result(s).objects:
+        if o.kind == "workpiece" and o.datum_undecided():
+            raise Conflict(f"the datum of {o.name} is not decided: {len(o.datum_candidates())} poses look the "
                            f"same in this image; choose which one is meant, then confirm")
     s.confirmed_revision, s.confirmed_by, s.confirmed_at = result_revision, by, utcnow()
     s.updated_at = utcnow()
@@ -433,42 +434,36 @@ def confirm_setup(session: Session, setup_id: int, *, result_revision: int, by: 
     session.flush()
     audit(session, by, "setup.confirm", setup_id=s.id, machine_id=s.machine_id, result_revision=result_revision,
           offset=(s.result or {}).get("offset"))
+    if events is not None:
+        session.commit()  # subscribers read the confirmed setup
+        events.publish("setup.confirmed", {"setup_id": s.id, "result_revision": s.confirmed_revision,
+                                           "by": s.confirmed_by, "offset": (s.result or {}).get("offset")})
     return s
 
 
 def refine_object(session: Session, files: FileStore, settings, setup_id: int, *, object_index: int,
                   by: str | None = None) -> Setup:
     """"Refine from here": the edge fit started at the object's current (e.g. adjusted) pose -> revision n+1."""
-    from app.vision import object_pose
-    from app.vision.localize import _object_entry, marker_labels_table
-
-    s, objs = _located_objects(session, setup_id, object_index)
-    obj = objs[object_index]
-    if not obj.get("model_id"):
-        raise Invalid(f"object {obj['name']} has no library model to refine against")
-    (cand,) = _candidates(session, files, [{"model_id": obj["model_id"], "revision": obj["revision"]}])
-    cand.name = obj["name"]
-    image = decode_image(files.read(session.get(Capture, s.capture_id).image_sha256))
+    s, result, obj = _located_object(session, setup_id, object_index)
+    if not obj.model_id:
+        raise Invalid(f"object {obj.name} has no library model to refine against")
+    (cand,) = library_candidates(session, files, [{"model_id": obj.model_id, "revision": obj.revision}])
+    cand.name = obj.name
+    image = read_image(files.read(session.get(Capture, s.capture_id).image_sha256))
     K, dist = np.asarray(s.intrinsics["K"]), np.asarray(s.intrinsics["dist"])
-    T_cam_table = np.asarray(s.result["table"]["T_cam_table"])
     machine = get_machine(session, s.machine_id)
-    (table,) = _candidates(session, files, [{"model_id": machine.table_model_id, "revision": machine.table_revision}])
+    (table,) = library_candidates(session, files, [{"model_id": machine.table_model_id,
+                                                    "revision": machine.table_revision}])
     layout = library.get_revision(session, machine.table_model_id, machine.table_revision).fiducials
-    pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(),
-                                     start_poses=[np.asarray(obj["T_table_obj"])],
+    pose = object_pose.locate_object(image, K, dist, result.T_cam_table, cand.prepare(),
+                                     start_poses=[obj.pose],
                                      known_models=((table.prepare(), np.eye(4)),),
                                      known_regions=marker_labels_table(layout or {}))
     if not pose:
         raise Invalid(f"refinement from this pose failed: {pose.reason}; nudge the part closer to where "
                       "it is in the picture and try again")
-    entry = _object_entry(cand, pose, tuple(obj.get("colour_bgr") or (0, 220, 0)))
-    entry["flags"] = [*entry.get("flags", []), "refined from the operator's pose"]
-    result = {**s.result, "objects": [entry if i == object_index else o for i, o in enumerate(objs)]}
-    result = review_fields(result, get_machine(session, s.machine_id), settings)
-    result["overlay_sha256"] = _redraw(session, files, s, result)
-    _new_revision(s, result, "refined from the operator's pose", by)
-    session.add(s)
-    session.flush()
-    audit(session, by or "?", "setup.refine", setup_id=s.id, machine_id=s.machine_id, object_index=object_index,
-          result_revision=s.result_revision)
-    return s
+    entry = LocatedObject.model_validate(object_entry(cand, pose, tuple(getattr(obj, "colour_bgr", None)
+                                                                        or (0, 220, 0))))
+    entry.flags = [*entry.flags, "refined from the operator's pose"]
+    return revise(session, files, settings, s, result.replace(object_index, entry),
+                  note="refined from the operator's pose", by=by, action="setup.refine", object_index=object_index)

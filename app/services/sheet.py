@@ -19,34 +19,41 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import cv2
 import numpy as np
 from sqlmodel import Session, col, select
 
-from app.machine import ControllerError, WorkOffset, make_controller, slot_number
-from app.services.cameras import decode_image, get_camera, grab_frame
-from app.services.errors import Conflict, Invalid, NotFound, Unavailable
+from app.geometry.transforms import check_pose
+from app.geometry.work_offset import sheet_work_offset
+from app.machine import ControllerError, WorkOffset, make_controller
 from app.services.audit import audit
+from app.services.cameras import read_image, get_camera, grab_frame, image_media_type
+from app.services.controller_write import check_slot, guarded_write, open_controller, travel_reasons
+from app.services.errors import Conflict, Invalid, NotFound, Unavailable
 from app.services.machines import get_machine
+from app.sources import SourceError, make_source
 from app.store.files import FileStore
 from app.store.models import SheetAlignment, SheetBedPose, SheetMonitor, SheetMonitorEvent, utcnow
+from app.vision.bed_scale import BedPlane
+from app.vision.drift import CORNER_NOT_FOUND, DriftMonitor, FRAME_MISSING, REDATUM, STOP, draw_drift
+from app.vision.intrinsics import parse_intrinsics
+from app.vision.sheet import MAX_MARGIN_MM, draw_sheet, find_sheet
 
 log = logging.getLogger(__name__)
 
 #: decisions published as events (``sheet.ok`` would be one per frame: only logged and stored)
 PUBLISHED = ("redatum", "stop", "frame_missing", "corner_not_found")
 RECENT = 200  # decisions kept in memory per monitor for the page
+DecisionUrl = Callable[[int, int], str]  # (monitor id, decision id) -> the decision's address
 
 
 # ----------------------------------------------------------------------------------------- bed pose
 def _check_bed_pose(T_cam_bed) -> np.ndarray:
-    from app.geometry.transforms import check_pose
-
     try:
         return check_pose(T_cam_bed, "T_cam_bed", tol=1e-5)
     except (ValueError, TypeError) as exc:
@@ -73,9 +80,6 @@ def get_bed_pose(session: Session, camera_id: int) -> SheetBedPose:
 
 # ----------------------------------------------------------------------------------------- alignment
 def _plane(intrinsics: dict, T_cam_bed, thickness_mm: float):
-    from app.vision.bed_scale import BedPlane
-    from app.vision.intrinsics import parse_intrinsics
-
     cam = parse_intrinsics(intrinsics)
     try:  # e.g. the pose puts the camera below the bed: a 422 with the reason, never a 500
         return BedPlane.create(cam.K_array, cam.dist_array, np.asarray(T_cam_bed, float), thickness_mm)
@@ -95,8 +99,6 @@ def create_alignment(session: Session, files: FileStore, events, *, machine_id: 
                      image: bytes | None, grab: bool, T_cam_bed, thickness_mm: float, margin_mm: float,
                      by: str | None) -> SheetAlignment:
     """Find the sheet in an uploaded or grabbed image; the attempt is stored whether found or not."""
-    from app.vision.sheet import MAX_MARGIN_MM, draw_sheet, find_sheet
-
     machine = get_machine(session, machine_id)
     cam = get_camera(session, camera_id)
     if not cam.intrinsics:
@@ -112,7 +114,7 @@ def create_alignment(session: Session, files: FileStore, events, *, machine_id: 
         img = grab_frame(cam)
         data = _jpeg(img, 95)
     else:
-        img = decode_image(image, "image")
+        img = read_image(image, "image")
         data = image
     w, h = cam.intrinsics["width"], cam.intrinsics["height"]
     if (img.shape[1], img.shape[0]) != (w, h):
@@ -122,7 +124,7 @@ def create_alignment(session: Session, files: FileStore, events, *, machine_id: 
     result = find_sheet(img, plane, margin_mm=margin_mm)
     row = SheetAlignment(
         machine_id=machine.id, camera_id=cam.id, intrinsics=cam.intrinsics, T_cam_bed=T.tolist(),
-        thickness_mm=thickness_mm, margin_mm=margin_mm, image_sha256=files.put(session, data, _media(data)),
+        thickness_mm=thickness_mm, margin_mm=margin_mm, image_sha256=files.put(session, data, image_media_type(data)),
         picture_sha256=files.put(session, _png(draw_sheet(img, result)), "image/png"),
         origin="grab" if grab else "upload", status="located" if result else "failed",
         reason="" if result else result.reason, result=result.as_dict(), created_by=by)
@@ -159,85 +161,67 @@ def confirm_alignment(session: Session, events, alignment_id: int, actor: str) -
 def machine_offset(machine, offset_bed: dict, thickness_mm: float, z_mm: float) -> WorkOffset:
     """X, Y, C of the sheet's work origin in machine coordinates (``T_machine_table`` as ``T_machine_bed``);
     Z is passed through (the controller's current Z)."""
-    c = math.radians(offset_bed["c_deg"])
-    T_bed_datum = np.eye(4)
-    T_bed_datum[:2, :2] = [[math.cos(c), -math.sin(c)], [math.sin(c), math.cos(c)]]
-    T_bed_datum[:3, 3] = (offset_bed["x_mm"], offset_bed["y_mm"], thickness_mm)
-    T = np.asarray(machine.T_machine_table, float) @ T_bed_datum
-    return WorkOffset(float(T[0, 3]), float(T[1, 3]), z_mm, math.degrees(math.atan2(T[1, 0], T[0, 0])))
-
-
-def _travel_reasons(machine, off: WorkOffset) -> list[str]:
-    out = []
-    for axis in ("x", "y"):
-        v = getattr(off, f"{axis}_mm")
-        lo, hi = machine.travel_mm[axis]
-        if not lo <= v <= hi:
-            out.append(f"{axis.upper()} {v:.3f} mm is outside the machine's travel [{lo}, {hi}] mm")
-    return out
-
-
-def _check_slot(slot: str) -> str:
-    slot = slot.strip().upper()
-    try:
-        slot_number(slot)
-    except ValueError as exc:
-        raise Invalid(str(exc)) from None
-    return slot
+    x, y, c = sheet_work_offset(machine.T_machine_table, offset_bed["x_mm"], offset_bed["y_mm"],
+                                offset_bed["c_deg"], thickness_mm)
+    return WorkOffset(x, y, z_mm, c)
 
 
 def write_sheet_offset(session: Session, machine, alignment_id: int, offset_bed: dict, thickness_mm: float,
                        slot: str, actor: str, action: str) -> dict:
-    """Read the slot, write X/Y/C (Z kept), read back, compare; audit before and after.
+    """The guarded write (:func:`app.services.controller_write.guarded_write`) of X/Y/C, Z kept.
 
-    ``action`` is ``sheet.export`` or ``sheet.redatum``. Returns {status: verified|mismatch|failed, before,
-    written, read_back, reason}; raises Unavailable when the controller cannot be reached before writing.
+    ``action`` is ``sheet.export`` or ``sheet.redatum`` (the audit prefix). Returns {status:
+    verified|mismatch|failed, slot, before, written, read_back, reason}; raises Unavailable when the
+    controller cannot be read before writing (also when it holds no offset there yet: there is no Z to
+    keep), Invalid when the offset lies outside the machine's travel in X or Y.
     """
-    if not machine.controller:
-        raise Invalid(f"machine {machine.id} ({machine.name}) has no controller configured")
-    try:
-        controller = make_controller(machine.controller)
-    except ValueError as exc:
-        raise Invalid(f"machine {machine.id} controller settings: {exc}") from None
+    controller = open_controller(machine)
+    ids = {"machine_id": machine.id, "alignment_id": alignment_id}
     out: dict = {"slot": slot, "before": None, "written": None, "read_back": None}
-    try:
-        try:
-            before = controller.read_offset(slot)
-        except ControllerError as exc:
-            audit(session, actor, f"{action}.read_failed", machine_id=machine.id, alignment_id=alignment_id,
-                  slot=slot, reason=str(exc))
-            session.commit()
-            raise Unavailable(f"{exc}; nothing was written") from None
+
+    def unreachable(exc: ControllerError) -> None:
+        audit(session, actor, f"{action}.read_failed", **ids, slot=slot, reason=str(exc))
+        session.commit()
+
+    def target(before: WorkOffset | None, empty: str) -> WorkOffset:
+        if before is None:  # the sheet keeps the slot's Z: with none there, nothing can be written
+            unreachable(ControllerError(empty))
+            raise Unavailable(f"{empty}; nothing was written")
         off = machine_offset(machine, offset_bed, thickness_mm, before.z_mm)
-        if reasons := _travel_reasons(machine, off):
+        if reasons := travel_reasons(machine, off, "xy"):
             raise Invalid("offset refused: " + "; ".join(reasons))
         out.update(before=before.as_dict(), written=off.as_dict())
-        audit(session, actor, f"{action}.write", machine_id=machine.id, alignment_id=alignment_id, slot=slot,
-              before=before.as_dict(), written=off.as_dict(), controller=controller.describe)
-        session.commit()  # the attempt is on record before the controller is touched
-        try:
-            controller.write_offset(slot, off)
-            back = controller.read_offset(slot)
-        except ControllerError as exc:
-            audit(session, actor, f"{action}.failed", machine_id=machine.id, alignment_id=alignment_id, slot=slot,
-                  reason=str(exc))
-            session.commit()
-            log.error("sheet offset write failed", extra={"alignment_id": alignment_id, "reason": str(exc)})
-            return {**out, "status": "failed", "reason": f"writing {slot} failed: {exc}"}
-        agree = off.agrees_with(back, controller.rounding_mm, controller.rounding_deg)
-        reason = "" if agree else (f"read-back {back} differs from written {off} beyond the controller's rounding "
-                                   f"({controller.rounding_mm} mm, {controller.rounding_deg}°)")
-        audit(session, actor, f"{action}.verified" if agree else f"{action}.mismatch", machine_id=machine.id,
-              alignment_id=alignment_id, slot=slot, written=off.as_dict(), read_back=back.as_dict())
-        session.commit()
-        return {**out, "read_back": back.as_dict(), "status": "verified" if agree else "mismatch", "reason": reason}
+        return off
+
+    try:
+        verdict = guarded_write(session, controller, slot=slot, actor=actor, action=action, ids=ids,
+                                target=target, unreachable=unreachable)
     finally:
         controller.close()
+    written = verdict.wanted
+    if verdict.status == "written":
+        audit(session, actor, f"{action}.verified", **ids, slot=slot, written=written.as_dict(),
+              read_back=verdict.read_back.as_dict())
+        session.commit()
+        return {**out, "read_back": verdict.read_back.as_dict(), "status": "verified", "reason": ""}
+    if verdict.differs:
+        audit(session, actor, f"{action}.mismatch", **ids, slot=slot, written=written.as_dict(),
+              read_back=verdict.read_back.as_dict())
+        session.commit()
+        return {**out, "read_back": verdict.read_back.as_dict(), "status": "mismatch",
+                "reason": f"read-back {verdict.read_back} differs from written {written} beyond the controller's "
+                          f"rounding ({controller.rounding_mm} mm, {controller.rounding_deg}°)"}
+    why = f"{verdict.error}; {verdict.reason}" if verdict.error is not None else verdict.reason
+    audit(session, actor, f"{action}.failed", **ids, slot=slot, reason=why)
+    session.commit()
+    log.error("sheet offset write failed", extra={"alignment_id": alignment_id, "reason": why})
+    return {**out, "read_back": verdict.read_back.as_dict() if verdict.read_back else None, "status": "failed",
+            "reason": f"writing {slot} failed: {why}"}
 
 
 def export_alignment(session: Session, events, alignment_id: int, *, slot: str, actor: str) -> dict:
     """Write a confirmed alignment's X, Y, C to ``slot`` (read back, audit, events)."""
-    slot = _check_slot(slot)
+    slot = check_slot(slot)
     row = get_alignment(session, alignment_id)
     if row.status != "located":
         raise Conflict(f"sheet alignment {alignment_id} failed ({row.reason}); there is nothing to export")
@@ -281,8 +265,9 @@ class SheetMonitors:
     (batch/test mode); both go through :meth:`process`, one frame at a time per monitor.
     """
 
-    def __init__(self, engine, files: FileStore, events) -> None:
+    def __init__(self, engine, files: FileStore, events, decision_url: DecisionUrl) -> None:
         self.engine, self.files, self.events = engine, files, events
+        self.decision_url = decision_url  # the web layer's address of a decision (for the published events)
         self._runs: dict[int, _Runtime] = {}
         self._lock = threading.Lock()
 
@@ -297,9 +282,7 @@ class SheetMonitors:
     # ------------------------------------------------------------------ start / stop
     def start(self, session: Session, *, alignment_id: int, l1_mm: float, l2_mm: float, interval_s: float | None,
               slot: str, roi_px: int, actor: str, hold_after_unseen: int | None = None) -> SheetMonitor:
-        from app.vision.drift import DriftMonitor
-
-        slot = _check_slot(slot)
+        slot = check_slot(slot)
         row = get_alignment(session, alignment_id)
         if row.status != "located":
             raise Conflict(f"sheet alignment {alignment_id} failed ({row.reason}); nothing to monitor")
@@ -322,10 +305,9 @@ class SheetMonitors:
             if cam.source.get("kind", "upload") == "upload":
                 raise Invalid(f"camera {cam.id} ({cam.name}) has no image source to poll (upload only); "
                               "configure a source or post frames (interval_s = null)")
-            from app.sources import make_source
 
             source = make_source(cam.source)
-        image = decode_image(self.files.read(row.image_sha256), "alignment image")
+        image = read_image(self.files.read(row.image_sha256), "alignment image")
         plane = _plane(row.intrinsics, row.T_cam_bed, row.thickness_mm)
         try:
             drift = DriftMonitor(np.asarray(row.result["corners_px"]), plane, l1_mm, l2_mm, margin_mm=row.margin_mm,
@@ -386,8 +368,6 @@ class SheetMonitors:
 
     # ------------------------------------------------------------------ frames
     def _poll(self, rt: _Runtime, source, interval_s: float) -> None:
-        from app.sources import SourceError
-
         while not rt.stop_event.is_set():
             t0 = time.monotonic()
             try:
@@ -408,8 +388,6 @@ class SheetMonitors:
 
     def process(self, monitor_id: int, frame, *, missing_reason: str = "", actor: str = "sheet monitor") -> dict:
         """One frame (BGR ndarray, encoded bytes or None) -> decision, stored, acted on, published."""
-        from app.vision.drift import CORNER_NOT_FOUND, FRAME_MISSING, REDATUM, STOP, draw_drift
-
         rt = self._runs.get(monitor_id)
         if rt is None:
             with Session(self.engine, expire_on_commit=False) as session:
@@ -429,7 +407,7 @@ class SheetMonitors:
                     img = frame
                     frame_sha = self.files.put(session, _jpeg(frame), "image/jpeg")
                 elif isinstance(frame, (bytes, bytearray)) and frame:
-                    frame_sha = self.files.put(session, bytes(frame), _media(bytes(frame)))
+                    frame_sha = self.files.put(session, bytes(frame), image_media_type(bytes(frame)))
                     img = cv2.imdecode(np.frombuffer(bytes(frame), np.uint8), cv2.IMREAD_COLOR)
                 if img is not None and decision.decision != "ok":
                     picture_sha = self.files.put(session, _jpeg(draw_drift(img, decision, mon.roi_px)), "image/jpeg")
@@ -459,7 +437,7 @@ class SheetMonitors:
                 mon.updated_at = utcnow()
                 session.add(mon)
                 session.flush()
-                item = event_public(ev)
+                item = event_public(ev, self.decision_url)
                 mon.last_decision = item
                 session.add(mon)
                 session.commit()
@@ -491,13 +469,6 @@ class SheetMonitors:
         return out
 
 
-def _media(data: bytes) -> str:
-    """Media type of a posted frame as far as its first bytes tell (it may not be an image at all)."""
-    if data.startswith(b"\x89PNG"):
-        return "image/png"
-    return "image/jpeg" if data.startswith(b"\xff\xd8") else "application/octet-stream"
-
-
 def _controller_call(machine, what: str) -> str:
     """``controller.stop()`` / ``pause()``: "done", or the reason it failed (also logged)."""
     if not machine.controller:
@@ -519,14 +490,15 @@ def _controller_call(machine, what: str) -> str:
 _REGISTRY_LOCK = threading.Lock()
 
 
-def registry(app_state, session: Session) -> SheetMonitors:
+def registry(app_state, session: Session, decision_url: DecisionUrl) -> SheetMonitors:
     """The service's :class:`SheetMonitors`, made on first use, which finishes (in ``session``) the monitors
     left 'running' by an earlier run of the service."""
     with _REGISTRY_LOCK:
         reg = getattr(app_state, "sheet_monitors", None)
         if reg is None:
             SheetMonitors.finish_stale(session)
-            reg = app_state.sheet_monitors = SheetMonitors(app_state.engine, app_state.files, app_state.events)
+            reg = app_state.sheet_monitors = SheetMonitors(app_state.engine, app_state.files, app_state.events,
+                                                             decision_url)
     return reg
 
 
@@ -559,8 +531,10 @@ def get_event(session: Session, monitor_id: int, event_id: int) -> SheetMonitorE
     return ev
 
 
-def event_public(ev: SheetMonitorEvent) -> dict:
-    base = f"/api/v1/sheet/monitors/{ev.monitor_id}/decisions/{ev.id}"
+def event_public(ev: SheetMonitorEvent, decision_url: DecisionUrl) -> dict:
+    """A decision as answered and published; its frame and picture at ``decision_url(monitor, decision)``
+    + ``/frame`` and ``/picture`` (the web layer's addresses: services build no URLs of their own)."""
+    base = decision_url(ev.monitor_id, ev.id)
     return {"id": ev.id, "monitor_id": ev.monitor_id, "frame_index": ev.frame_index, "decision": ev.decision,
             "reason": ev.reason, "errors_mm": ev.errors_mm, "at": ev.at.isoformat(),
             "corners_px": ev.detail.get("corners_px"), "new_offset": ev.detail.get("new_offset"),

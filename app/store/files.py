@@ -39,3 +39,8 @@ class FileStore:
 
     def read(self, sha256: str) -> bytes:
         return self.path(sha256).read_bytes()
+
+    def media_type(self, session: Session, sha256: str) -> str:
+        """The media type the file was stored with ("application/octet-stream" when unknown)."""
+        row = session.get(StoredFile, sha256)
+        return row.media_type if row is not None and row.media_type else "application/octet-stream"

@@ -1,4 +1,4 @@
-"""Read what the 3D view shows from the store (through the services) into plain :mod:`app.viewer.scene` data.
+"""Read what the 3D view shows (through the services, never the store) into plain :mod:`app.viewer.scene` data.
 
 Meshes are cached per (model id, revision): revisions are immutable, so a cached mesh never goes stale.
 """
@@ -12,14 +12,13 @@ import cv2
 import numpy as np
 import trimesh
 
-from app.services import library
+from app.geometry.mesh import load_mesh
+from app.services import library, planning
 from app.services import setups as setup_svc
-from app.services.cameras import decode_image
+from app.services.cameras import read_image
 from app.services.errors import ServiceError
 from app.services.machines import get_machine
-from app.store.db import session_scope
-from app.store.files import FileStore
-from app.store.models import Capture
+from app.services.transaction import transaction
 from app.viewer.scene import DEFAULT_OBJECT_RGB, TOUCH_RGB, SetupView, ViewCamera, ViewObject, ViewPath
 
 
@@ -31,9 +30,7 @@ class MeshCache:
         self._items: OrderedDict[tuple[int, int], trimesh.Trimesh] = OrderedDict()
         self._lock = threading.Lock()
 
-    def get(self, session, files: FileStore, model_id: int, revision: int | None) -> tuple[trimesh.Trimesh, int]:
-        from app.geometry.mesh import load_mesh
-
+    def get(self, session, files, model_id: int, revision: int | None) -> tuple[trimesh.Trimesh, int]:
         rev = library.get_revision(session, model_id, revision)
         key = (model_id, rev.revision)
         with self._lock:
@@ -50,7 +47,7 @@ class MeshCache:
 
 def setup_version(engine, setup_id: int) -> tuple:
     """What a setup's 3D view depends on: (result revision, confirmed revision); polled by the viewer."""
-    with session_scope(engine) as session:
+    with transaction(engine) as session:
         s = setup_svc.get_setup(session, setup_id)
         return s.result_revision, s.confirmed_revision
 
@@ -75,12 +72,10 @@ class PlanCache:
                 self._items.popitem(last=False)
 
 
-def probing_paths(session, files: FileStore, setup, plans: PlanCache | None = None,
+def probing_paths(session, files, setup, plans: PlanCache | None = None,
                   settings=None) -> tuple[tuple[ViewPath, ...], str]:
     """The probing plan of a confirmed setup as paths to draw (safe travel, and each touch move from its
     approach point to the expected contact), or none and why."""
-    from app.services import planning
-
     if setup.confirmed_revision is None or setup.confirmed_revision != setup.result_revision:
         return (), "the probing plan is drawn once the setup is confirmed"
     key = (setup.id, setup.result_revision)
@@ -107,33 +102,30 @@ def _rgb(bgr) -> tuple[int, int, int]:
     return int(bgr[2]), int(bgr[1]), int(bgr[0])
 
 
-def load_setup_view(engine, files: FileStore, meshes: MeshCache, setup_id: int,
+def load_setup_view(engine, files, meshes: MeshCache, setup_id: int,
                     plans: PlanCache | None = None, settings=None) -> SetupView | str:
     """The 3D view of a setup, or a sentence saying why there is nothing to show yet."""
     try:
-        with session_scope(engine) as session:
+        with transaction(engine) as session:
             s = setup_svc.get_setup(session, setup_id)
             machine = get_machine(session, s.machine_id)
             table_mesh, _ = meshes.get(session, files, machine.table_model_id, machine.table_revision)
-            result = s.result or {}
+            result = setup_svc.setup_result(s)
             objects = []
             editable = None
-            for i, o in enumerate(result.get("objects") or []):
-                if o.get("model_id") is None or o.get("T_table_obj") is None:
+            for i, o in enumerate(result.objects):
+                if o.model_id is None:
                     continue
-                mesh, _ = meshes.get(session, files, int(o["model_id"]), o.get("revision"))
-                objects.append(ViewObject(name=str(o.get("name", f"object {i}")), kind=str(o.get("kind", "workpiece")),
-                                          mesh=mesh, T_table_obj=np.asarray(o["T_table_obj"], float),
-                                          rgb=_rgb(o.get("colour_bgr")), result_index=i))
-                if editable is None and o.get("kind", "workpiece") == "workpiece":
+                mesh, _ = meshes.get(session, files, int(o.model_id), o.revision)
+                objects.append(ViewObject(name=o.name, kind=o.kind, mesh=mesh, T_table_obj=o.pose,
+                                          rgb=_rgb(getattr(o, "colour_bgr", None)), result_index=i))
+                if editable is None and o.kind == "workpiece":
                     editable = len(objects) - 1
             camera = None
-            table = result.get("table") or {}
-            if table.get("T_cam_table") is not None and s.intrinsics:
-                sha = result.get("overlay_sha256") or session.get(Capture, s.capture_id).image_sha256
-                img = decode_image(files.read(sha))
+            if result.table and result.table.get("T_cam_table") is not None and s.intrinsics:
+                img = read_image(files.read(setup_svc.picture_sha256(session, s)))
                 img = img if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-                camera = ViewCamera(T_cam_table=np.asarray(table["T_cam_table"], float),
+                camera = ViewCamera(T_cam_table=result.T_cam_table,
                                     K=np.asarray(s.intrinsics["K"], float), width=int(s.intrinsics["width"]),
                                     height=int(s.intrinsics["height"]), image_rgb=img[:, :, ::-1].copy())
             paths, why = probing_paths(session, files, s, plans, settings)
@@ -144,10 +136,10 @@ def load_setup_view(engine, files: FileStore, meshes: MeshCache, setup_id: int,
         return exc.detail if isinstance(exc.detail, str) else str(exc.detail)
 
 
-def load_model_view(engine, files: FileStore, meshes: MeshCache, model_id: int) -> SetupView | str:
+def load_model_view(engine, files, meshes: MeshCache, model_id: int) -> SetupView | str:
     """A library model alone at the origin (the library page's 3D preview)."""
     try:
-        with session_scope(engine) as session:
+        with transaction(engine) as session:
             m = library.get_model(session, model_id)
             mesh, rev = meshes.get(session, files, model_id, None)
             return SetupView(title=m.name, revision=rev, table_mesh=None,

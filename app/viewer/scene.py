@@ -19,8 +19,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import cv2
 import numpy as np
 import trimesh
+import viser.transforms as vtf
 
 from app.geometry.transforms import check_pose, inv, make_pose
 
@@ -35,8 +37,6 @@ TOUCH_RGB = (240, 140, 0)
 
 def pose_to_viser(T_a_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """4x4 pose in mm -> (wxyz quaternion, position in m) as viser wants them."""
-    import viser.transforms as vtf
-
     T = check_pose(np.asarray(T_a_b, float))
     wxyz = vtf.SO3.from_matrix(T[:3, :3]).wxyz
     return np.asarray(wxyz, float), T[:3, 3] * M_PER_MM
@@ -44,8 +44,6 @@ def pose_to_viser(T_a_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def viser_to_pose(wxyz, position_m) -> np.ndarray:
     """(wxyz quaternion, position in m) from viser -> 4x4 pose in mm (rotation re-orthonormalised)."""
-    import viser.transforms as vtf
-
     R = vtf.SO3(np.asarray(wxyz, float)).as_matrix()
     u, _s, vt = np.linalg.svd(R)
     R = u @ vt
@@ -121,8 +119,6 @@ def frustum_geometry(cam: ViewCamera) -> dict:
 
 
 def _downscale(image_rgb: np.ndarray, width_px: int) -> np.ndarray:
-    import cv2
-
     h, w = image_rgb.shape[:2]
     if w <= width_px:
         return np.ascontiguousarray(image_rgb)

@@ -1,7 +1,7 @@
 """The viser server inside the service process: one scene PER BROWSER, chosen by the page's path.
 
 A browser opens ``/viewer/setup/<id>/`` (or ``/viewer/model/<id>/``) on the service; the relay
-(:mod:`app.viewer.relay`) forwards its websocket to viser at ``ws://127.0.0.1:<viser_port>/setup/<id>``.
+(:mod:`app.api.routes.viewer`) forwards its websocket to viser at ``ws://127.0.0.1:<viser_port>/setup/<id>``.
 On connect we read that path and build the scene into ``client.scene`` only, so two operators looking
 at two setups never see each other's.
 
@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import re
+import secrets
 import threading
 import time
 from urllib.parse import parse_qs
@@ -22,6 +23,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
+import viser
 
 from app.viewer.scene import (SceneHandles, SetupView, build_setup_scene, initial_camera, move_objects,
                               update_paths)
@@ -53,8 +55,6 @@ class Tickets:
         self._lock = threading.Lock()
 
     def issue(self, who: str, person: bool) -> str:
-        import secrets
-
         ticket = secrets.token_urlsafe(32)
         now = time.monotonic()
         with self._lock:
@@ -106,8 +106,6 @@ class ViewerServer:
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> "ViewerServer":
-        import viser
-
         self.server = viser.ViserServer(host=self.host, port=self.requested_port, verbose=False)
         if self.port != self.requested_port:  # viser silently takes the next free port
             log.warning("viser port busy; using another", extra={"requested": self.requested_port, "port": self.port})

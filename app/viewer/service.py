@@ -8,7 +8,9 @@ import logging
 
 import numpy as np
 
-from app.store.db import session_scope
+from app.services.errors import ServiceError
+from app.services.setups import adjust_object
+from app.services.transaction import transaction
 from app.viewer.data import MeshCache, PlanCache, load_model_view, load_setup_view, setup_version
 from app.viewer.server import ViewerServer
 
@@ -27,11 +29,8 @@ def start_viewer(app) -> ViewerServer:
         return load_model_view(engine, files, meshes, ident)
 
     def on_move(setup_id: int, object_index: int, T_table_obj: np.ndarray, who: str) -> bool:
-        from app.services.errors import ServiceError
-        from app.services.setups import adjust_object
-
         try:
-            with session_scope(engine) as session:
+            with transaction(engine) as session:
                 adjust_object(session, files, settings, setup_id, object_index=object_index,
                               T_table_obj=T_table_obj.tolist(), by=f"{who} in the 3D view")
             return True

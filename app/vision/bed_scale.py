@@ -26,40 +26,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from app.geometry.transforms import check_pose, inv, rvec_tvec_to_pose
+from app.vision.intrinsics import distort_px, undistort_px
 
 # ---------------------------------------------------------------------------------------------------
 # pixel <-> ideal pixel <-> bed plane
-
-
-def undistort_px(uv_px: ArrayLike, K: np.ndarray, dist: ArrayLike) -> np.ndarray:
-    """Raw image pixels (N, 2) -> ideal (undistorted pinhole) pixels (N, 2) with the same ``K``."""
-    uv = np.asarray(uv_px, dtype=np.float64).reshape(-1, 1, 2)
-    if uv.shape[0] == 0:
-        return np.zeros((0, 2))
-    K = np.asarray(K, dtype=np.float64)
-    out = cv2.undistortPoints(uv, K, np.asarray(dist, dtype=np.float64).ravel(), None, None, K)
-    return out.reshape(-1, 2)
-
-
-def distort_px(uv_ideal_px: ArrayLike, K: np.ndarray, dist: ArrayLike) -> np.ndarray:
-    """Ideal pinhole pixels (N, 2) -> raw image pixels (N, 2) through OpenCV's distortion model."""
-    uv = np.asarray(uv_ideal_px, dtype=np.float64).reshape(-1, 2)
-    if uv.shape[0] == 0:
-        return np.zeros((0, 2))
-    K = np.asarray(K, dtype=np.float64)
-    d = np.asarray(dist, dtype=np.float64).ravel()
-    xn = (uv - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
-    if len(d) <= 5 and K[0, 1] == 0.0:  # OpenCV's model written out (fast for small point sets)
-        k1, k2, p1, p2, k3 = np.concatenate([d, np.zeros(5 - len(d))])
-        x, y = xn[:, 0], xn[:, 1]
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        return np.stack([K[0, 0] * xd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
-    xyz = np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
-    out, _ = cv2.projectPoints(xyz, np.zeros(3), np.zeros(3), K, np.asarray(dist, dtype=np.float64).ravel())
-    return out.reshape(-1, 2)
 
 
 def plane_homography(K: np.ndarray, T_cam_bed: np.ndarray, height_mm: float) -> np.ndarray:

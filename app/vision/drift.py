@@ -28,8 +28,9 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 
-from app.vision.bed_scale import BedPlane, distort_px, undistort_px
-from app.vision.sheet import SheetResult, WorkOffset, refine_corner, to_gray, work_origin
+from app.vision.bed_scale import BedPlane
+from app.vision.intrinsics import distort_px, undistort_px
+from app.vision.sheet import BedOffset, SheetResult, refine_corner, to_gray, work_origin
 
 OK = "ok"
 REDATUM = "redatum"
@@ -60,7 +61,7 @@ class DriftDecision:
         Corners found in this frame (raw px), NaN rows for corners not found.
     corners_bed_mm : ndarray (4, 2) or None
         The same in the bed frame.
-    new_offset : WorkOffset or None
+    new_offset : BedOffset or None
         The new work offset when ``decision == "redatum"``.
     """
 
@@ -71,7 +72,7 @@ class DriftDecision:
     errors_from_start_mm: np.ndarray
     corners_px: np.ndarray | None = None
     corners_bed_mm: np.ndarray | None = None
-    new_offset: WorkOffset | None = None
+    new_offset: BedOffset | None = None
 
     @property
     def max_error_mm(self) -> float:

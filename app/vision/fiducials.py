@@ -36,9 +36,6 @@ Pipeline of :func:`locate_table`:
    markers on one line, the rotation about that line is weak and this shows in ``sigma_rot_deg``;
    beyond ``max_sigma_rot_deg`` the result is a failure.
 
-A markerless fallback (fit of the table's own edges / T-slots to its model) can be added as
-another :class:`TableLocator` and chained with :func:`locate_table_chain`.
-
 Pixel convention: OpenCV (u, v), pixel centres at integers, ``img[v, u]``. Marker corners in
 OpenCV's order, marker frame as in DESIGN (corner 0 at (-s/2, +s/2, 0)).
 """
@@ -47,7 +44,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import cv2
 import numpy as np
@@ -56,7 +52,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from app.geometry.transforms import check_pose, make_pose, rvec_tvec_to_pose, transform_points
-from app.vision.bed_scale import distort_px
+from app.vision.intrinsics import distort_px, undistort_px
 
 # ---------------------------------------------------------------------------------------------
 # Results
@@ -141,41 +137,9 @@ class TableFailure:
                 "time_ms": round(float(self.time_ms), 1)}
 
 
-class TableLocator(Protocol):
-    """Anything that locates the table in one image: markers now, a markerless edge fit later."""
-
-    def __call__(self, image: np.ndarray, K: np.ndarray, dist: np.ndarray,
-                 layout: dict) -> TablePose | TableFailure: ...
-
-
-def locate_table_chain(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dict,
-                       locators: tuple[TableLocator, ...]) -> TablePose | TableFailure:
-    """Try ``locators`` in order; the first success wins, else a failure joining all reasons."""
-    reasons = []
-    last: TablePose | TableFailure | None = None
-    for loc in locators:
-        last = loc(image, K, dist, layout)
-        if last:
-            return last
-        reasons.append(last.reason)
-    if last is None:
-        return TableFailure("no table locator configured")
-    return TableFailure("; ".join(reasons), last.ids_seen, last.ids_rejected, last.corners_px)
-
-
 # ---------------------------------------------------------------------------------------------
 # Helpers
 # ---------------------------------------------------------------------------------------------
-
-_CRIT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
-
-
-def undistort_px(uv_px: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Raw pixels (N, 2) -> ideal pinhole pixels (N, 2) (same K), iterated to convergence."""
-    uv = np.asarray(uv_px, np.float64).reshape(-1, 1, 2)
-    if len(uv) == 0:
-        return np.zeros((0, 2))
-    return cv2.undistortPoints(uv, K, dist, None, None, K, _CRIT).reshape(-1, 2)
 
 
 def _gray(image: np.ndarray) -> np.ndarray:

@@ -94,7 +94,7 @@ class LocalizeResult:
                            for s in self.stages]}
 
 
-def _object_entry(cand: Candidate, pose: object_pose.ObjectPose, colour) -> dict:
+def object_entry(cand: Candidate, pose: object_pose.ObjectPose, colour) -> dict:
     d = pose.to_dict()
     d.update(name=cand.name, kind=cand.kind, model_id=cand.model_id, revision=cand.revision,
              colour_bgr=list(colour),
@@ -203,7 +203,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                              known_regions=labels)
             _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table)
     for i, (cand, pose) in enumerate(located):
-        objects.append(_object_entry(cand, pose, COLOURS[i % len(COLOURS)]))
+        objects.append(object_entry(cand, pose, COLOURS[i % len(COLOURS)]))
     overlay = draw_overlay(image, K, dist, table, located)
 
     workpieces = [o for o in objects if o["kind"] == "workpiece"]

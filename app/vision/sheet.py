@@ -40,7 +40,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from app.vision.bed_scale import BedPlane, distort_px, undistort_px
+from app.vision.bed_scale import BedPlane
+from app.vision.intrinsics import distort_px, undistort_px
 
 MAX_MARGIN_MM = 20.0
 # a step's outside shoulder ends where the profile moves by less than this fraction of its steepest
@@ -53,8 +54,10 @@ SHOULDER_FRACTION = 0.05
 
 
 @dataclass(frozen=True)
-class WorkOffset:
-    """Work offset in the bed frame: origin (x_mm, y_mm) and rotation c_deg about bed z."""
+class BedOffset:
+    """A sheet's work origin in the bed frame: origin (x_mm, y_mm) and rotation c_deg about bed z (the
+    machine's offset, :class:`app.machine.WorkOffset`, is made from it by
+    :func:`app.geometry.work_offset.sheet_work_offset`)."""
 
     x_mm: float
     y_mm: float
@@ -78,7 +81,7 @@ class SheetResult:
         Direction of the edge corner 0 -> corner 1 against bed x, in (-180, 180].
     origin_bed_mm : ndarray (2,)
         Work origin: corner 0 moved by margin_mm along both edges.
-    offset : WorkOffset
+    offset : BedOffset
         (origin x, origin y, angle) to send as the work offset (bed frame).
     side_lengths_mm : ndarray (4,)
         Edges 0-1, 1-2, 2-3, 3-0 on the bed plane.
@@ -94,7 +97,7 @@ class SheetResult:
     corners_bed_mm: np.ndarray
     angle_deg: float
     origin_bed_mm: np.ndarray
-    offset: WorkOffset
+    offset: BedOffset
     margin_mm: float
     thickness_mm: float
     side_lengths_mm: np.ndarray
@@ -440,7 +443,7 @@ def _order_from_origin(corners_bed: np.ndarray) -> np.ndarray:
     return np.roll(idx, -k)
 
 
-def work_origin(corners_bed_mm: np.ndarray, margin_mm: float) -> tuple[np.ndarray, WorkOffset]:
+def work_origin(corners_bed_mm: np.ndarray, margin_mm: float) -> tuple[np.ndarray, BedOffset]:
     """Work origin and offset from ordered corners (4, 2) bed mm.
 
     X runs along the edge corner 0 -> 1, Y perpendicular to it (counter-clockwise, towards the
@@ -452,7 +455,7 @@ def work_origin(corners_bed_mm: np.ndarray, margin_mm: float) -> tuple[np.ndarra
     ex = (c[1] - c[0]) / np.linalg.norm(c[1] - c[0])
     ey = np.array([-ex[1], ex[0]])
     o = c[0] + margin_mm * (ex + ey)
-    return o, WorkOffset(float(o[0]), float(o[1]), float(np.degrees(np.arctan2(ex[1], ex[0]))))
+    return o, BedOffset(float(o[0]), float(o[1]), float(np.degrees(np.arctan2(ex[1], ex[0]))))
 
 
 def _finish(
@@ -694,6 +697,6 @@ def draw_sheet(image: np.ndarray, result: SheetResult | SheetFailure | BaselineR
 
 
 __all__ = [
-    "BaselineResult", "SheetFailure", "SheetResult", "WorkOffset", "baseline_corners", "draw_sheet",
+    "BaselineResult", "BedOffset", "SheetFailure", "SheetResult", "baseline_corners", "draw_sheet",
     "find_sheet", "first_step_crossings", "fit_line_ransac", "refine_corner", "to_gray", "work_origin",
 ]

@@ -169,3 +169,15 @@ def test_422_bodies_follow_the_openapi_schema(server):
         body = r.json()
         assert isinstance(body["detail"], str) and body["detail"].startswith("name:")
         assert all({"loc", "msg", "type"} <= set(e) for e in body["errors"])
+
+
+def test_setup_image_is_answered_with_the_type_it_was_stored_with(server, machine):
+    """The capture's media type is stored with the file (PNG, JPEG as uploaded) and answered as stored."""
+    png = _png(320, 200)
+    jpg = cv2.imencode(".jpg", np.full((200, 320, 3), 90, np.uint8))[1].tobytes()
+    with server.client("admin") as c:
+        for name, data, media in (("a.png", png, "image/png"), ("a.jpg", jpg, "image/jpeg")):
+            r = c.post("/api/v1/setups", data={"machine_id": str(machine["id"])}, files={"image": (name, data)})
+            assert r.status_code == 202, r.text
+            got = c.get(f"/api/v1/setups/{r.json()['id']}/image")
+            assert got.status_code == 200 and got.content == data and got.headers["content-type"] == media

@@ -156,6 +156,20 @@ def test_probe_results_refine_the_pose(server, bracket_setup):
         assert r.status_code == 422 and "expected 3 or 9 numbers" in r.json()["detail"], r.text
 
 
+def _bracket_setup(server, x_mm: float, y_mm: float, z_mm: float, sigma_mm: float) -> tuple[int, object, np.ndarray, np.ndarray]:
+    """(setup id, mesh, T_obj_datum) of a located setup (factory) with the library's bracket_140 at x, y, z."""
+    mesh = library_mesh("bracket_140")
+    datum = np.asarray(library_entry("bracket_140").T_obj_datum)
+    with server.client() as c:
+        m = make_machine(c, None)
+        wp = next(x for x in c.get("/api/v1/models", params={"kind": "workpiece"}).json()["data"]
+                  if x["key"] == "bracket_140")
+    T = place_on_table(mesh, x_mm, y_mm, z_mm)
+    sid = located_setup(server, m["id"], T, T_obj_datum=datum, model=(wp["id"], wp["current_revision"]),
+                        sigma_mm=sigma_mm)
+    return sid, mesh, datum, T
+
+
 def test_probe_results_beyond_the_expected_error_mark_the_result_fail(server):
     """Touches that find the part further from the confirmed pose than its stated error allow: a new
     revision with the probed pose, the per-touch deviation, and FAIL (no export, no program) until
@@ -163,14 +177,7 @@ def test_probe_results_beyond_the_expected_error_mark_the_result_fail(server):
     from app.geometry.transforms import pose_from_xyz_euler
     from app.planning.probing import ProbingParams, choose_touch_points
 
-    mesh = library_mesh("bracket_140")
-    datum = np.asarray(library_entry("bracket_140").T_obj_datum)
-    with server.client() as c:
-        m = make_machine(c, None)
-        wp = next(x for x in c.get("/api/v1/models", params={"kind": "workpiece"}).json()["data"]
-                  if x["key"] == "bracket_140")
-    T = place_on_table(mesh, 320.0, 160.0, 5.0)
-    sid = located_setup(server, m["id"], T, T_obj_datum=datum, model=(wp["id"], wp["current_revision"]), sigma_mm=0.05)
+    sid, mesh, datum, T = _bracket_setup(server, 320.0, 160.0, 5.0, sigma_mm=0.05)
     with server.client("operator") as c:
         c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": 1})
         touches = choose_touch_points(mesh, T, datum, ProbingParams())
@@ -195,3 +202,38 @@ def test_probe_results_beyond_the_expected_error_mark_the_result_fail(server):
         assert r.status_code == 200, r.text
         o = r.json()["result"]["objects"][0]
         assert o["uncertainty_pass"] and "probe_fail" not in o
+
+
+def test_probe_results_redraw_the_overlay_at_the_probed_pose(server):
+    """Every revision of a result is drawn anew: after probe results the overlay shows the probed pose, not
+    the pose before (it used to keep the previous revision's picture), and T_cam_obj follows T_table_obj."""
+    from app.geometry.transforms import pose_from_xyz_euler
+    from app.planning.probing import ProbingParams, choose_touch_points
+
+    # under the factory's camera (320 x 200 px, 900 mm above), so the part is in the picture
+    sid, mesh, datum, _ = _bracket_setup(server, 400.0, -200.0, 0.0, sigma_mm=0.5)
+    with server.client("operator") as c:
+        r = c.post(f"/api/v1/setups/{sid}/adjust", json={"object_index": 0, "nudge": {"dx_mm": 0.0}})
+        assert r.status_code == 200, r.text
+        drawn = r.json()
+        assert drawn["overlay_url"], "an adjusted revision is drawn"
+        before_png = c.get(drawn["overlay_url"]).content
+        c.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": drawn["result_revision"]})
+        T_nom = np.asarray(drawn["result"]["objects"][0]["T_table_obj"])
+        touches = choose_touch_points(mesh, T_nom, datum, ProbingParams())
+        T_true_datum = pose_from_xyz_euler(1.0, -0.8, 0.0, 0, 0, 0.3) @ T_nom @ datum
+        log = _simulated_probe_log(touches, T_true_datum, None, ProbingParams().ball_radius_mm,
+                                   T_prog_table=_program_frame(c, sid))
+        r = c.post(f"/api/v1/setups/{sid}/probe-results", content=log, headers={"Content-Type": "text/plain"})
+        assert r.status_code == 200, r.text
+        probed = r.json()
+        o = probed["result"]["objects"][0]
+        assert not np.allclose(o["T_table_obj"], T_nom, atol=0.1), "the probed pose differs from the nominal"
+        T_cam_table = np.asarray(probed["result"]["table"]["T_cam_table"])
+        assert np.allclose(o["T_cam_obj"], T_cam_table @ np.asarray(o["T_table_obj"]), atol=1e-9)
+        assert probed["result"]["overlay_sha256"] != drawn["result"]["overlay_sha256"]
+        after_png = c.get(probed["overlay_url"]).content
+        assert after_png != before_png, "the overlay still shows the pose before probing"
+    with server.client("admin") as c:
+        actions = [e["action"] for e in c.get("/api/v1/audit", params={"setup_id": sid}).json()]
+        assert "setup.probe_results" in actions and "setup.adjust" in actions

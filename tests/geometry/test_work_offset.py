@@ -91,3 +91,12 @@ def test_bad_inputs_raise():
         work_offset_from_poses(np.eye(4), np.ones((4, 4)), np.eye(4), max_tilt_deg=1)
     with pytest.raises(ValueError, match="max_tilt_deg"):
         work_offset_from_poses(np.eye(4), np.eye(4), np.eye(4), max_tilt_deg=-1)
+
+
+def test_sheet_work_offset_turns_the_bed_origin_into_machine_x_y_c():
+    from app.geometry.work_offset import sheet_work_offset
+
+    # bed corner at machine (100, 50, -20), bed turned +90° about Z; sheet origin 30 mm along bed x,
+    # 10 mm along bed y, turned +15°, 3 mm thick
+    x, y, c = sheet_work_offset(pose_from_xyz_euler(100, 50, -20, c_deg=90), 30, 10, 15, 3)
+    assert np.allclose([x, y, c], [100 - 10, 50 + 30, 105])

@@ -13,7 +13,7 @@ from app.geometry.transforms import inv, make_pose, rotation_angle_deg, transfor
 from app.synth.scene import random_scene, render_scene
 from app.vision.bed_scale import distort_px
 from app.vision.fiducials import (TableFailure, TablePose, detect_markers, draw_table,
-                                  locate_table, locate_table_chain, refine_marker_corners)
+                                  locate_table, refine_marker_corners)
 
 NEED = "need at least 2 non-collinear markers of the layout"
 
@@ -204,21 +204,6 @@ def test_draw_table_marks_used_and_rejected():
     assert np.any((patch[:, 1] > 150) & (patch[:, 2] < 80))      # green outline
     fail = locate_table(_flat_image({3: (0, 0)}), K_FLAT, np.zeros(5), _layout({3: (0, 0)}))
     assert draw_table(_flat_image({3: (0, 0)}), fail).shape == (600, 800, 3)
-
-
-def test_chain_falls_back_and_joins_reasons():
-    img = np.full((600, 800), 120, np.uint8)
-    layout = _layout({3: (0, 0)})
-
-    def never(image, K, dist, layout):
-        return TableFailure("table edges not found: no straight table edges in the image")
-
-    res = locate_table_chain(img, K_FLAT, np.zeros(5), layout, (locate_table, never))
-    assert not res
-    assert res.reason.endswith("; table edges not found: no straight table edges in the image")
-    pos = {3: (-250.0, -150.0), 5: (250.0, -150.0), 8: (0.0, 180.0)}
-    good = locate_table_chain(_flat_image(pos), K_FLAT, np.zeros(5), _layout(pos, 42.0), (never, locate_table))
-    assert good
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""ISO 230-2 evaluation, CSV/plots and compensation proposals of a rotary-axis run."""
+"""ISO 230-2 evaluation and CSV/plots of a rotary-axis run (the compensation tables: tests/machine)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from app.synth.rotary_images import ErrorCurve, iso_bidirectional_angles
-from app.vision.rotary_report import (PROPOSAL_BANNER, fanuc_pitch_proposal, heidenhain_com_proposal,
-                                      infer_directions, iso230_evaluate, plot_svg, write_report)
+from app.vision.rotary_report import infer_directions, iso230_evaluate, plot_svg, report_files
 
 
 def test_infer_directions_turns_at_repeated_angle():
@@ -44,31 +43,11 @@ def test_single_run_has_no_repeatability_but_valid_json():
     assert "nan" not in text.lower() and "R = n/a (R needs 2+ runs each way)" in text
 
 
-def test_compensation_proposals_cancel_the_injected_curve(tmp_path):
-    a, d = iso_bidirectional_angles([float(v) for v in range(0, 361, 30)], repeats=2)
-    curve = ErrorCurve(reversal_arcsec=4.0)
-    e_inj = curve.error_arcsec(np.array(a), np.array(d))
-    E = -(e_inj - e_inj[0])
-    rep, paths = write_report(tmp_path, a, np.array(a) - E / 3600.0, E, d, axis_name="B")
-    assert rep.mean_reversal_arcsec == pytest.approx(4.0)
-    names = sorted(p.name for p in paths)
-    assert names == sorted(["run.csv", "positions.csv", "error.svg", "error.png", "B_proposal.COM",
-                            "fanuc_pitch_proposal.txt"])
-    assert (tmp_path / "error.png").read_bytes().startswith(b"\x89PNG")
-    com = heidenhain_com_proposal(rep, "B")
-    assert PROPOSAL_BANNER in com
-    rows = [r.split() for r in com.splitlines() if r[:1] == " " and r.split()[0].isdigit()]
-    assert len(rows) == 13
-    # correction + deviation = 0 at every point (positive direction column)
-    for r, p in zip(rows, rep.positions):
-        assert float(r[2]) * 3600.0 == pytest.approx(-p.mean_up_arcsec, abs=0.002)
-        assert float(r[3]) * 3600.0 == pytest.approx(-p.mean_down_arcsec, abs=0.002)
-    fan = fanuc_pitch_proposal(rep, detection_unit_deg=0.0001)
-    assert PROPOSAL_BANNER in fan
-    pts = [list(map(float, r.split(","))) for r in fan.splitlines() if not r.startswith(";")]
-    assert len(pts) == 13 and sum(p[3] for p in pts) == 0  # a full turn closes
-    assert "3625 (travel per turn) = 3600000" in fan
-    svg = plot_svg(a, E, rep, d)
-    assert svg.startswith("<svg") and svg.count("<circle") == len(a)
-    csv_lines = (tmp_path / "run.csv").read_text().splitlines()
-    assert len(csv_lines) == len(a) + 1 and csv_lines[0].startswith("image,commanded_deg")
+def test_report_files_are_bytes_and_nothing_is_written(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    a, d = iso_bidirectional_angles([float(v) for v in range(0, 91, 30)], repeats=1)
+    E = np.linspace(0.0, 3.0, len(a))
+    rep, named = report_files(a, np.array(a) - E / 3600.0, E, d)
+    assert sorted(named) == ["error.png", "error.svg", "positions.csv", "run.csv"]
+    assert all(isinstance(v, bytes) for v in named.values()) and named["error.png"].startswith(b"\x89PNG")
+    assert named["error.svg"].decode() == plot_svg(a, E, rep, d) and list(tmp_path.iterdir()) == []

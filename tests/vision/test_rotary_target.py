@@ -6,7 +6,8 @@ import re
 
 import pytest
 
-from app.vision.rotary_target import TargetError, default_target, target_from_dict, target_pdf, target_svg
+from app.vision.printables import target_pdf, target_svg
+from app.vision.rotary_target import TargetError, default_target, target_from_dict
 
 
 def _square(r=(10.0, 6.0), d=40.0):

@@ -12,10 +12,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 from pydantic import BaseModel
-from sqlmodel import col, select
-
 from app.api.deps import AdminPrincipal, SessionDep
-from app.store.models import AuditEntry
+from app.services import audit as audit_svc
 
 router = APIRouter(prefix="/audit", tags=["audit"])
 
@@ -31,14 +29,7 @@ class AuditPublic(BaseModel):
 
 
 def _entries(session, setup_id: int | None, action: str | None, since: datetime | None, limit: int):
-    q = select(AuditEntry)
-    if setup_id is not None:
-        q = q.where(AuditEntry.setup_id == setup_id)
-    if action:
-        q = q.where(col(AuditEntry.action).startswith(action))
-    if since is not None:
-        q = q.where(AuditEntry.at >= since)
-    return session.exec(q.order_by(col(AuditEntry.id).desc()).limit(limit)).all()
+    return audit_svc.list_entries(session, setup_id=setup_id, action=action, since=since, limit=limit)
 
 
 @router.get("", response_model=list[AuditPublic], summary="Audit log, newest first (admin)")

@@ -12,9 +12,10 @@ from pydantic import BaseModel, Field
 from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
 from app.api.uploads import json_form, read_uploads
 from app.services import cameras as svc
+from app.services import printing
+from app.services.cameras import Intrinsics
 from app.services.audit import audit
 from app.services.errors import Invalid
-from app.vision.intrinsics import Intrinsics
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], dependencies=[Depends(get_principal)])
 
@@ -78,21 +79,7 @@ def list_cameras(session: SessionDep) -> list[CameraPublic]:
 def board_pdf(board: Annotated[str, Query(description="Board JSON, as for a calibration run", examples=[
         '{"kind": "charuco", "squares": [5, 7], "square_mm": 40, "marker_mm": 20, "dictionary": "DICT_6X6_250"}'])]
               ) -> Response:
-    from pydantic import ValidationError
-
-    from app.vision.board_print import board_sheet_pdf
-    from app.vision.calibration import BoardSpec
-
-    try:
-        spec = BoardSpec.model_validate(json_form(board, "board"))
-        pdf = board_sheet_pdf(spec)
-    except ValidationError as exc:
-        e = exc.errors()[0]
-        where = ".".join(["board", *map(str, e["loc"])])
-        raise Invalid(f"{where}: {e['msg'].removeprefix('Value error, ')}") from None
-    except ValueError as exc:
-        raise Invalid(f"board: {exc}") from None
-    name = f"setupcam-{spec.kind}-board.pdf"
+    pdf, name = printing.calibration_board_pdf(json_form(board, "board"))
     return Response(pdf, media_type="application/pdf", headers={"Content-Disposition": f'inline; filename="{name}"'})
 
 

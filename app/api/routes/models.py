@@ -11,7 +11,6 @@ from app.api.schemas import ModelPublic, Page, RevisionPublic
 from app.api.uploads import content_disposition, json_form, safe_filename
 from app.services import library
 from app.services.audit import audit
-from app.store.models import LibraryModel, ModelRevision
 
 router = APIRouter(prefix="/models", tags=["models"], dependencies=[Depends(get_principal)])
 
@@ -21,7 +20,8 @@ SURFACES_HELP = ("Support surfaces JSON (clamps and supports): plane patches a p
                  "at most 16, each {name, z_mm, outline_xy: >= 3 [x, y]}")
 
 
-def to_public(model: LibraryModel, rev: ModelRevision) -> ModelPublic:
+def to_public(model, rev) -> ModelPublic:
+    """A library model (``LibraryModel`` row) at one of its revisions (``ModelRevision`` row)."""
     q = f"?revision={rev.revision}"
     return ModelPublic(
         **model.model_dump(include=set(ModelPublic.model_fields) - {"revision", "mesh_url", "thumbnail_url"}),

@@ -1,5 +1,5 @@
-"""The operator's pages (static HTML/CSS/JS from ``frontend/``, no build step, no CDN) and the
-same-origin relay to the 3D viewer. Mounted at the root (not under /api/v1)."""
+"""The operator's pages (static HTML/CSS/JS from ``frontend/``, no build step, no CDN). Mounted at the
+root (not under /api/v1), as is the 3D viewer's relay (app/api/routes/viewer.py)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,6 @@ from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse
 
 from app.resources import bundled_dir
-from app.viewer import relay
 
 FRONTEND_DIR = bundled_dir("frontend")   # the checkout's frontend/ or the installed copy
 STATIC_DIR = FRONTEND_DIR / "static"
@@ -25,7 +24,6 @@ STATIC_TYPES = {".css": "text/css", ".js": "text/javascript", ".svg": "image/svg
                 ".ico": "image/x-icon"}
 
 router = APIRouter(include_in_schema=False)
-router.include_router(relay.router)
 
 
 TITLE_RE = re.compile(r"^<!-- title: ([^(]*?)\s*(\(.*\))? -->\n")

@@ -11,6 +11,7 @@ from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
 from app.api.uploads import content_disposition, json_form, read_uploads
+from app.services import printing
 from app.services import rotary as svc
 from app.services.errors import Invalid, NotFound
 
@@ -85,16 +86,10 @@ def get_file(session: SessionDep, files: FilesDep, run_id: int, name: str) -> Re
     if name not in run.files:
         raise NotFound(f"rotary run {run_id} has no file {name!r}; it has {', '.join(sorted(run.files)) or 'none'}")
     data = files.read(run.files[name])
-    media = svc.MEDIA.get("." + name.rsplit(".", 1)[-1].lower(), "text/plain")
-    return Response(data, media_type=media, headers={"Content-Disposition": content_disposition(name)})
+    return Response(data, media_type=svc.media_type_of(name), headers={"Content-Disposition": content_disposition(name)})
 
 
 @router.get("/target.{fmt}", response_class=Response, summary="The printable default target at true scale")
 def default_target_file(fmt: str) -> Response:
-    from app.vision.rotary_target import default_target, target_pdf, target_svg
-
-    if fmt == "pdf":
-        return Response(target_pdf(default_target()), media_type="application/pdf")
-    if fmt == "svg":
-        return Response(target_svg(default_target()), media_type="image/svg+xml")
-    raise NotFound("target format must be pdf or svg")
+    data, media = printing.rotary_target(fmt)
+    return Response(data, media_type=media)

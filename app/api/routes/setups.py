@@ -13,9 +13,10 @@ from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal
 from app.api.uploads import read_image_upload
+from app.services import export as export_svc
 from app.services import setups as svc
 from app.services.errors import Invalid, NotFound
-from app.store.db import session_scope
+from app.services.transaction import transaction
 
 router = APIRouter(prefix="/setups", tags=["setups"], dependencies=[Depends(get_principal)])
 
@@ -101,11 +102,11 @@ def get_setup(session: SessionDep, setup_id: int) -> SetupPublic:
             response_class=StreamingResponse, responses={200: {"content": {"text/event-stream": {}}}})
 async def setup_events(request: Request, setup_id: int) -> StreamingResponse:
     engine = request.app.state.engine
-    with session_scope(engine) as session:
+    with transaction(engine) as session:
         svc.get_setup(session, setup_id)  # 404 before the stream starts
 
     def snapshot() -> tuple[str, list[dict], str]:
-        with session_scope(engine) as session:
+        with transaction(engine) as session:
             s = svc.get_setup(session, setup_id)
             return s.status, list(s.stages), s.reason
 
@@ -155,11 +156,8 @@ def get_stage_image(session: SessionDep, files: FilesDep, setup_id: int, index: 
 @router.get("/{setup_id}/image", response_class=Response, summary="The captured image",
             responses={200: {"content": {"image/jpeg": {}}}})
 def get_image(session: SessionDep, files: FilesDep, setup_id: int) -> Response:
-    from app.store.models import Capture
-
-    s = svc.get_setup(session, setup_id)
-    data = files.read(session.get(Capture, s.capture_id).image_sha256)
-    return Response(data, media_type="image/png" if data[:4] == b"\x89PNG" else "image/jpeg")
+    data, media_type = svc.captured_image(session, files, setup_id)
+    return Response(data, media_type=media_type)
 
 
 class Nudge(BaseModel):
@@ -221,11 +219,8 @@ def adjust(session: SessionDep, files: FilesDep, settings: SettingsDep, who: Ope
              responses={409: {"description": "the revision is not the current one"}})
 def confirm(request: Request, session: SessionDep, who: OperatorPrincipal, setup_id: int,
             body: ConfirmBody) -> SetupPublic:
-    s = svc.confirm_setup(session, setup_id, result_revision=body.result_revision, by=who.label())
-    session.commit()
-    request.app.state.events.publish("setup.confirmed", {"setup_id": s.id, "result_revision": s.confirmed_revision,
-                                                         "by": s.confirmed_by, "offset": (s.result or {}).get("offset")})
-    return to_public(s)
+    return to_public(svc.confirm_setup(session, setup_id, result_revision=body.result_revision, by=who.label(),
+                                       events=request.app.state.events))
 
 
 class ExportBody(BaseModel):
@@ -269,9 +264,7 @@ def export(request: Request, session: SessionDep, settings: SettingsDep, who: Op
            body: ExportBody,
            idempotency_key: Annotated[str | None, Header(alias="Idempotency-Key", max_length=100)] = None,
            ) -> ExportPublic:
-    from app.services.export import export_offset
-
-    row = export_offset(session, settings, request.app.state.events, setup_id, slot=body.slot, actor=who.label(),
+    row = export_svc.export_offset(session, settings, request.app.state.events, setup_id, slot=body.slot, actor=who.label(),
                         acknowledge_change=body.acknowledge_change,
                         idempotency_key=idempotency_key or body.idempotency_key)
     return export_public(row)
@@ -279,10 +272,4 @@ def export(request: Request, session: SessionDep, settings: SettingsDep, who: Op
 
 @router.get("/{setup_id}/exports", response_model=list[ExportPublic], summary="Exports of a setup")
 def list_exports(session: SessionDep, setup_id: int) -> list[ExportPublic]:
-    from sqlmodel import select
-
-    from app.store.models import Export
-
-    svc.get_setup(session, setup_id)
-    return [export_public(r) for r in session.exec(select(Export).where(Export.setup_id == setup_id)
-                                                   .order_by(Export.id)).all()]
+    return [export_public(r) for r in export_svc.list_exports(session, setup_id)]

@@ -16,8 +16,7 @@ from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionD
 from app.api.uploads import check_image, json_form, read_image_upload, read_upload
 from app.services import sheet as svc
 from app.services.errors import NotFound
-from app.store.db import session_scope
-from app.store.models import StoredFile
+from app.services.transaction import transaction
 
 router = APIRouter(prefix="/sheet", tags=["sheet"], dependencies=[Depends(get_principal)])
 
@@ -112,13 +111,16 @@ class StopIn(BaseModel):
 
 def _monitor(session, mon, recent: int = 100) -> MonitorPublic:
     return MonitorPublic(**mon.model_dump(), alignment=_alignment(svc.get_alignment(session, mon.alignment_id)),
-                         decisions=[svc.event_public(e) for e in svc.monitor_events(session, mon.id, limit=recent)])
+                         decisions=[svc.event_public(e, decision_url) for e in svc.monitor_events(session, mon.id, limit=recent)])
 
 
 def _stored(session, files, sha: str) -> Response:
-    stored = session.get(StoredFile, sha)
-    return Response(files.read(sha), media_type=stored.media_type if stored else "application/octet-stream",
-                    headers={"Cache-Control": "max-age=3600"})
+    return Response(files.read(sha), media_type=files.media_type(session, sha), headers={"Cache-Control": "max-age=3600"})
+
+
+def decision_url(monitor_id: int, decision_id: int) -> str:
+    """Where a monitor's decision is read (its frame and picture below it)."""
+    return f"/api/v1/sheet/monitors/{monitor_id}/decisions/{decision_id}"
 
 
 # ----------------------------------------------------------------------------------------- bed pose
@@ -197,7 +199,7 @@ def export_alignment(request: Request, session: SessionDep, alignment_id: int, b
 @router.post("/monitors", status_code=status.HTTP_201_CREATED, response_model=MonitorPublic,
              summary="Start drift monitoring of a confirmed alignment (camera polling or posted frames)")
 def start_monitor(request: Request, session: SessionDep, body: MonitorIn, who: OperatorPrincipal) -> MonitorPublic:
-    mon = svc.registry(request.app.state, session).start(
+    mon = svc.registry(request.app.state, session, decision_url).start(
         session, alignment_id=body.alignment_id, l1_mm=body.l1_mm, l2_mm=body.l2_mm, interval_s=body.interval_s,
         slot=body.slot, roi_px=body.roi_px, actor=who.label(), hold_after_unseen=body.hold_after_unseen)
     return _monitor(session, mon)
@@ -205,13 +207,13 @@ def start_monitor(request: Request, session: SessionDep, body: MonitorIn, who: O
 
 @router.get("/monitors", response_model=list[MonitorPublic], summary="Recent monitors, newest first")
 def list_monitors(request: Request, session: SessionDep, state: str | None = None, limit: int = 20) -> list[MonitorPublic]:
-    svc.registry(request.app.state, session)
+    svc.registry(request.app.state, session, decision_url)
     return [_monitor(session, m, recent=1) for m in svc.list_monitors(session, state, max(1, min(limit, 100)))]
 
 
 @router.get("/monitors/{monitor_id}", response_model=MonitorPublic, summary="State and recent decisions")
 def get_monitor(request: Request, session: SessionDep, monitor_id: int, recent: int = 100) -> MonitorPublic:
-    svc.registry(request.app.state, session)
+    svc.registry(request.app.state, session, decision_url)
     return _monitor(session, svc.get_monitor(session, monitor_id), max(1, min(recent, svc.RECENT)))
 
 
@@ -222,7 +224,7 @@ async def post_frame(request: Request, session: SessionDep, settings: SettingsDe
     data = await read_upload(frame, settings, "frame") if frame is not None else None
     if data:  # never decode an image over the pixel limit; an unreadable frame is the monitor's to judge
         check_image(data, settings, "frame", unreadable_ok=True)
-    reg = svc.registry(request.app.state, session)
+    reg = svc.registry(request.app.state, session, decision_url)
     session.commit()  # the frame is processed in sessions of its own
     return await asyncio.to_thread(reg.process, monitor_id, data or None, actor=who.label())
 
@@ -231,7 +233,7 @@ async def post_frame(request: Request, session: SessionDep, settings: SettingsDe
              summary="End monitoring (and, with stop_machine, abort the program)")
 def stop_monitor(request: Request, session: SessionDep, monitor_id: int, who: OperatorPrincipal,
                  body: StopIn | None = None) -> MonitorPublic:
-    mon = svc.registry(request.app.state, session).end(session, monitor_id, who.label(),
+    mon = svc.registry(request.app.state, session, decision_url).end(session, monitor_id, who.label(),
                                               stop_machine=bool(body and body.stop_machine))
     return _monitor(session, mon)
 
@@ -253,14 +255,14 @@ async def monitor_events(request: Request, monitor_id: int, after: int = 0) -> S
     """``event: decision`` per frame (after decision id ``after``; 0 = from the first), then ``event: end``
     with the state once the monitor is stopped or finished."""
     engine = request.app.state.engine
-    with session_scope(engine) as session:
+    with transaction(engine) as session:
         svc.get_monitor(session, monitor_id)  # 404 before the stream starts
 
     def fetch(last: int) -> tuple[list[dict], str, str]:
-        with session_scope(engine) as session:
+        with transaction(engine) as session:
             mon = svc.get_monitor(session, monitor_id)
             rows = svc.monitor_events(session, monitor_id, after_id=last, limit=1000)
-            return [svc.event_public(e) for e in rows], mon.state, mon.reason
+            return [svc.event_public(e, decision_url) for e in rows], mon.state, mon.reason
 
     async def stream():
         last, idle = after, 0

@@ -12,8 +12,8 @@ import io
 
 import numpy as np
 
-from app.geometry.marker_sheet import PAGE_SIZES_MM, pdf_scale_bar
 from app.vision.calibration import BoardSpec, _charuco_board
+from app.vision.printables.markers import PAGE_SIZES_MM, pdf_scale_bar
 
 MARGIN_MM = 12.0
 HEADER_MM = 20.0    # title and printing note above the board
@@ -44,7 +44,7 @@ def board_image(board: BoardSpec, px_per_mm: float = 10.0) -> np.ndarray:
     return _charuco_board(board).generateImage((cols * sq, rows * sq), marginSize=0, borderBits=1)
 
 
-def sheet_page(board: BoardSpec) -> tuple[str, float, float]:
+def board_page(board: BoardSpec) -> tuple[str, float, float]:
     """(name, width, height) in mm of the smallest A4 / A3 page, upright or turned, that holds the board.
     ValueError when even A3 is too small."""
     w, h = board_size_mm(board)
@@ -64,7 +64,7 @@ def board_sheet_pdf(board: BoardSpec) -> bytes:
     from reportlab.lib.utils import ImageReader
     from reportlab.pdfgen import canvas
 
-    name, W, H = sheet_page(board)
+    name, W, H = board_page(board)
     w, h = board_size_mm(board)
     img = Image.fromarray(board_image(board)).convert("1")
     buf = io.BytesIO()

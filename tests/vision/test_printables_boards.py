@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.vision.board_print import board_image, board_sheet_pdf, board_size_mm, sheet_page
+from app.vision.printables.boards import board_image, board_page, board_sheet_pdf, board_size_mm
 from app.vision.calibration import BoardSpec, detect_board
 
 PX_PER_MM = 10.0
@@ -36,7 +36,7 @@ def test_detector_finds_every_corner_at_the_stated_size(board):
 def test_pdf_places_the_board_at_true_size(board):
     pdf = board_sheet_pdf(board)
     assert pdf.startswith(b"%PDF-") and len(re.findall(rb"/Type /Page\b", pdf)) == 1
-    name, W, H = sheet_page(board)
+    name, W, H = board_page(board)
     box = [float(v) for v in re.search(rb"/MediaBox \[\s*0 0 ([\d.]+) ([\d.]+)\s*\]", pdf).groups()]
     assert box == pytest.approx([W * 72 / 25.4, H * 72 / 25.4], abs=0.01)
     w_mm, h_mm = board_size_mm(board)
@@ -49,4 +49,4 @@ def test_pdf_places_the_board_at_true_size(board):
 
 def test_a_board_larger_than_a3_is_refused_with_its_size():
     with pytest.raises(ValueError, match="does not fit on A3"):
-        sheet_page(BoardSpec(kind="chessboard", inner_corners=(20, 15), square_mm=30.0))
+        board_page(BoardSpec(kind="chessboard", inner_corners=(20, 15), square_mm=30.0))

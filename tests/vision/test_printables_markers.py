@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from app.geometry import parts
-from app.geometry.marker_sheet import marker_cells, marker_sheet_pdf, marker_sheet_svg, plan_sheet, sheet_pages
+from app.vision.printables.markers import marker_cells, marker_sheet_pdf, marker_sheet_svg, plan_sheet, sheet_pages
 
 SVG = "{http://www.w3.org/2000/svg}"
 LIBRARY = Path(__file__).resolve().parents[2] / "models_library"

@@ -1,4 +1,5 @@
-"""Same-origin access to the viser server: the page ``/viewer/<kind>/<id>/`` and its websocket.
+"""Same-origin access to the viser server: the page ``/viewer/<kind>/<id>/`` and its websocket (the
+viewer's only web door; the viewer itself, app/viewer, knows nothing of the web layer).
 
 viser's web client is one self-contained ``index.html`` in the wheel. It builds its websocket URL from
 the page's address (query dropped, trailing ``/`` stripped), so the page at ``/viewer/setup/5/``
@@ -17,8 +18,14 @@ from pathlib import Path
 from typing import Literal
 from urllib.parse import urlencode
 
+import viser
+import websockets
 from fastapi import APIRouter, HTTPException, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import HTMLResponse
+
+from app.api.deps import token_of
+from app.api.limits import same_origin
+from app.services.access import principal_of_token
 
 router = APIRouter(tags=["viewer"], include_in_schema=False)
 
@@ -27,8 +34,6 @@ ViewKind = Literal["setup", "model"]
 
 @lru_cache(maxsize=1)
 def viser_index_html() -> str:
-    import viser
-
     return (Path(viser.__file__).parent / "client" / "build" / "index.html").read_text()
 
 
@@ -39,18 +44,10 @@ def viewer_html() -> str:
 
 
 def principal_of(app, cookies, headers):
-    """The caller (``app.services.access.Principal``) from a session cookie or bearer token, or None.
+    """The caller (``app.services.access.Principal``) from a bearer token or session cookie, or None.
     The relay lets through only what the REST API would."""
-    from app.api.deps import SESSION_COOKIE
-    from app.services.access import resolve_token
-    from app.store.db import session_scope
-
-    auth = headers.get("authorization", "")
-    token = auth[7:] if auth.lower().startswith("bearer ") else cookies.get(SESSION_COOKIE)
-    if not token:
-        return None
-    with session_scope(app.state.engine) as session:
-        return resolve_token(session, token)
+    token, _ = token_of(headers, cookies)
+    return principal_of_token(app.state.engine, token)
 
 
 def _viewer(app):
@@ -71,14 +68,10 @@ def viewer_page(request: Request, kind: ViewKind, ident: int) -> HTMLResponse:
 
 @router.websocket("/viewer/{kind}/{ident}")
 async def viewer_socket(ws: WebSocket, kind: ViewKind, ident: int) -> None:
-    import websockets
-
     viewer = getattr(ws.app.state, "viewer", None)
     if viewer is None or viewer.server is None:
         await ws.close(code=1011)
         return
-    from app.api.limits import same_origin
-
     if not same_origin(ws.headers, ws.app.state.settings):
         await ws.close(code=1008)  # another site's page in the operator's browser: refused (no CSRF by socket)
         return
