@@ -24,7 +24,7 @@ from app.vision.object_pose.refine import edge_support, refine_pose
 from app.vision.object_pose.results import ObjectFailure, ObjectPose
 from app.vision.object_pose.search import Hyp, find_starts, settle_start, starts_from_poses, turned_over
 from app.vision.object_pose.uncertainty import (MAX_PRIOR_SIGMAS, SNAP_MM, covariance, hull_points,
-                                                origin_sigma, prior_offsets)
+                                                origin_sigma, prior_offsets, unknown_height_covariance)
 from app.vision.object_pose.verify import same_up_to_symmetry, unexplained_edges
 
 
@@ -495,6 +495,8 @@ def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, di
     T_table_obj, T6 = T_table_obj @ S_up, T6 @ S_up
     # the 6-DoF posterior is already at hand unless the flat fit stands in for it
     cov, inl, rms = cov6_full if info is info6 else covariance(info, K, dist, ctx.T_cam_table, data_scale=o.sigma_scale)
+    if cf.conflict:
+        cov = cov + unknown_height_covariance(T_table_obj, model, ctx.T_cam_table, o.riser_sigma_mm)
     cov_o, sigma = origin_sigma(cov, T_table_obj, model)
     if "sol" not in info6 or cf.conflict:     # height and tilt not measured, only assumed
         sigma.update(z_mm=float("nan"), rx_deg=float("nan"), ry_deg=float("nan"))

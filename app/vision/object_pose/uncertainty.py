@@ -139,3 +139,20 @@ def origin_sigma(cov: np.ndarray, T_table_obj: np.ndarray, model: PreparedModel)
              "rx_deg": float(np.degrees(sd[3])), "ry_deg": float(np.degrees(sd[4])),
              "rz_deg": float(np.degrees(sd[5]))}
     return cov_o, sigma
+
+
+def unknown_height_covariance(T_table_obj: np.ndarray, model: PreparedModel, T_cam_table: np.ndarray,
+                              sigma_h_mm: float) -> np.ndarray:
+    """6x6 covariance (about the part's centre, table axes) of a height known only to ``sigma_h_mm``.
+
+    One image sees a part along the line of sight: raised by dz it looks the same moved by dz along
+    that line, so its x and y are unknown along the line's horizontal direction as well (a part on
+    parallels fitted flat onto the seat below sits 20 mm lower *and* 14 mm nearer the camera). The
+    flat fit held the height fixed and so stated x and y as if it were known."""
+    C = np.linalg.inv(T_cam_table)[:3, 3]
+    c = transform_points(T_table_obj, model.center_obj[None])[0]
+    d = c - C
+    slide = np.array([d[0] / d[2], d[1] / d[2], 1.0]) if abs(d[2]) > 1e-6 else np.array([0.0, 0.0, 1.0])
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = np.outer(slide, slide) * sigma_h_mm ** 2
+    return cov
