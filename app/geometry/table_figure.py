@@ -38,7 +38,7 @@ def table_figure_svg(bbox_min_mm, bbox_max_mm, T_machine_table, *, markers=(), p
     mn, mx = every.min(axis=0), every.max(axis=0)
     k = min((WIDTH_PX - 2 * PAD_PX) / max(float(mx[0] - mn[0]), 1.0),
             (MAX_HEIGHT_PX - 2 * PAD_PX) / max(float(mx[1] - mn[1]), 1.0))
-    height = int(round((mx[1] - mn[1]) * k + 2 * PAD_PX + 30))
+    height = int(round((mx[1] - mn[1]) * k + 2 * PAD_PX + 24))  # + a strip below for the legend
 
     def px(p) -> tuple[float, float]:  # machine mm -> SVG px (y down)
         return round((p[0] - mn[0]) * k + PAD_PX, 2), round((mx[1] - p[1]) * k + PAD_PX, 2)
@@ -72,12 +72,12 @@ def table_figure_svg(bbox_min_mm, bbox_max_mm, T_machine_table, *, markers=(), p
     ox, oy = px(o)
     parts.append(f'<circle class="table-origin" cx="{ox}" cy="{oy}" r="5" fill="#1f77b4"/>')
     # the machine's own directions, bottom left, so the turn C reads against them
-    bx, by = 14, height - 14
+    bx, by = 14, height - 10
     parts.append(f'<g class="machine-axes" stroke="#555" stroke-width="2">'
-                 f'<line x1="{bx}" y1="{by}" x2="{bx + 40}" y2="{by}" marker-end="url(#head)"/>'
-                 f'<line x1="{bx}" y1="{by}" x2="{bx}" y2="{by - 40}" marker-end="url(#head)"/></g>'
-                 f'<text x="{bx + 44}" y="{by + 4}" fill="#555">machine X</text>'
-                 f'<text x="{bx + 4}" y="{by - 44}" fill="#555">machine Y</text>')
+                 f'<line x1="{bx}" y1="{by}" x2="{bx + 30}" y2="{by}" marker-end="url(#head)"/>'
+                 f'<line x1="{bx}" y1="{by}" x2="{bx}" y2="{by - 30}" marker-end="url(#head)"/></g>'
+                 f'<text x="{bx + 34}" y="{by + 4}" fill="#555">machine X</text>'
+                 f'<text x="{bx + 6}" y="{by - 24}" fill="#555">Y</text>')
     for label, xy in jogged:
         x, y = px(xy)
         parts.append(f'<g class="jog-point" data-point={quoteattr(label)} data-x-mm="{xy[0]:.4f}" '

@@ -64,8 +64,9 @@ def _wrap(angle_deg: float) -> float:
     return (angle_deg + 180.0) % 360.0 - 180.0
 
 
-def table_frame_from_points(corner, x_point=None, y_point=None) -> TableFrameFit:
+def table_frame_from_points(corner, x_point=None, y_point=None, c_deg: float | None = None) -> TableFrameFit:
     """The table's pose from a jogged corner (x, y, z) and optional edge points (x, y[, z]); see module doc.
+    ``c_deg``: the angle as typed, used only when no edge point is given.
 
     Raises TableFrameError when a point is too close to the corner or the two edges disagree by more than
     MAX_EDGE_DISAGREEMENT_DEG (a point on the wrong edge, or a number typed wrong).
@@ -86,8 +87,14 @@ def table_frame_from_points(corner, x_point=None, y_point=None) -> TableFrameFit
             heights.append((name, float(p[2] - o[2]), span))
     disagreement = None
     if not estimates:
-        c_deg, sensitivity = 0.0, None
-        notes.append("C = 0: the table is taken square to the machine; jog to a point on the front edge to measure it")
+        sensitivity = None
+        if c_deg is None or not math.isfinite(c_deg):
+            c_deg = 0.0
+            notes.append("C = 0: the table is taken square to the machine; jog to a point on the front edge to "
+                         "measure it")
+        else:
+            c_deg = _wrap(float(c_deg))
+            notes.append(f"C = {c_deg:.4f}° as typed; jog to a point on the front edge to measure it")
     else:
         if len(estimates) == 2:
             disagreement = abs(_wrap(estimates[0][0] - estimates[1][0]))

@@ -158,7 +158,7 @@ def read_position(session: Session, machine_id: int):
 
 
 def table_frame(session: Session, *, table_model_id: int, table_revision: int | None, corner,
-                x_point=None, y_point=None) -> dict:
+                x_point=None, y_point=None, c_deg: float | None = None) -> dict:
     """T_machine_table from jogged points (see app/geometry/table_frame.py) and a top-view SVG of the
     table model where that puts it, with its markers and the points."""
     from app.geometry.table_figure import table_figure_svg
@@ -169,7 +169,7 @@ def table_frame(session: Session, *, table_model_id: int, table_revision: int | 
         raise Invalid(f"model {table_model_id} ({model.name}) is a {model.kind}, not a table")
     rev = library.get_revision(session, table_model_id, table_revision)
     try:
-        fit = table_frame_from_points(corner, x_point, y_point)
+        fit = table_frame_from_points(corner, x_point, y_point, c_deg)
     except TableFrameError as exc:
         raise Invalid(str(exc)) from None
     lo, hi = rev.summary.get("bbox_min_mm"), rev.summary.get("bbox_max_mm")

@@ -140,6 +140,8 @@ class TableFrameRequest(BaseModel):
     corner: JoggedPoint = Field(description="1: the table's front-left top corner (its origin), Z required")
     x_edge: JoggedPoint | None = Field(default=None, description="2: a point on the front (x) edge")
     y_edge: JoggedPoint | None = Field(default=None, description="3: a point on the left (y) edge")
+    c_deg: float | None = Field(default=None, allow_inf_nan=False,
+                                description="C as typed (degrees), used only without edge points")
 
 
 class TableFramePublic(BaseModel):
@@ -159,7 +161,8 @@ class TableFramePublic(BaseModel):
 def table_frame(session: SessionDep, body: TableFrameRequest) -> TableFramePublic:
     return TableFramePublic(**svc.table_frame(
         session, table_model_id=body.table_model_id, table_revision=body.table_revision, corner=body.corner.xyz(),
-        x_point=body.x_edge.xyz() if body.x_edge else None, y_point=body.y_edge.xyz() if body.y_edge else None))
+        x_point=body.x_edge.xyz() if body.x_edge else None, y_point=body.y_edge.xyz() if body.y_edge else None,
+        c_deg=body.c_deg))
 
 
 @router.delete("/{machine_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
