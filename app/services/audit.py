@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from sqlmodel import Session
+from sqlmodel import Session, select
 
 from app.store.models import AuditEntry
 
@@ -32,3 +32,11 @@ def audit_apart(engine, actor: str, action: str, *, setup_id: int | None = None,
 def audit_refusal(engine, actor: str, what: str, address: str, reason: str) -> None:
     """A role refusal (403) on record."""
     audit_apart(engine, actor, "access.refused", request=what[:300], address=address, reason=reason[:300])
+
+
+def export_refusals(session: Session, setup_id: int) -> list[AuditEntry]:
+    """Exports of a setup refused by a gate before any export row was written (not confirmed,
+    implausible, bad slot, ...), oldest first: the ``export.refused`` entries with their reason."""
+    return list(session.exec(select(AuditEntry).where(AuditEntry.setup_id == setup_id,
+                                                      AuditEntry.action == "export.refused")
+                             .order_by(AuditEntry.id)).all())

@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 from sqlmodel import Session, col, select
 
-from app.machine import ControllerError, WorkOffset, make_controller, slot_number
+from app.machine import ControllerError, NoOffsetYet, WorkOffset, make_controller, slot_number
 from app.services.cameras import decode_image, get_camera, grab_frame
 from app.services.errors import Conflict, Invalid, NotFound, Unavailable
 from app.services.audit import audit
@@ -203,6 +203,10 @@ def write_sheet_offset(session: Session, machine, alignment_id: int, offset_bed:
     try:
         try:
             before = controller.read_offset(slot)
+        except NoOffsetYet as exc:  # the controller answered: a note with what to do, not a link failure
+            raise Conflict(f"{exc}: the sheet alignment keeps the slot's Z, so write a full offset to {slot} "
+                           "first (a setup's export, or at the controller); nothing was written",
+                           code="no_offset_yet") from None
         except ControllerError as exc:
             audit(session, actor, f"{action}.read_failed", machine_id=machine.id, alignment_id=alignment_id,
                   slot=slot, reason=str(exc))

@@ -286,3 +286,20 @@ def list_exports(session: SessionDep, setup_id: int) -> list[ExportPublic]:
     svc.get_setup(session, setup_id)
     return [export_public(r) for r in session.exec(select(Export).where(Export.setup_id == setup_id)
                                                    .order_by(Export.id)).all()]
+
+
+class ExportRefusalPublic(BaseModel):
+    slot: str
+    reason: str
+    actor: str
+    at: datetime
+
+
+@router.get("/{setup_id}/export-refusals", response_model=list[ExportRefusalPublic],
+            summary="Exports of a setup refused before anything was written, with the reason")
+def list_export_refusals(session: SessionDep, setup_id: int) -> list[ExportRefusalPublic]:
+    from app.services.audit import export_refusals
+
+    svc.get_setup(session, setup_id)
+    return [ExportRefusalPublic(slot=str(e.detail.get("slot", "")), reason=str(e.detail.get("reason", "")),
+                                actor=e.actor, at=e.at) for e in export_refusals(session, setup_id)]
