@@ -52,6 +52,7 @@ def test_bad_points_are_refused_with_the_reason(client, table_id):  # noqa: F811
         ({"x_edge": _edge_point(0, 0, 500), "y_edge": _edge_point(4, 90, 300)}, "apart. Is point 3 on the left edge"),
         ({"corner": {"x_mm": 1, "y_mm": 2}}, "give X, Y and Z"),
         ({"table_model_id": 999999}, "not found"),
+        ({"corner": {"x_mm": 1e300, "y_mm": 0, "z_mm": 0}}, "less than or equal to 100000"),
     ]
     for change, why in cases:
         body = {"table_model_id": table_id, "corner": _corner(), **change}

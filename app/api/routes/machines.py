@@ -125,10 +125,14 @@ def read_position(session: SessionDep, machine_id: int) -> PositionPublic:
     return PositionPublic(**svc.read_position(session, machine_id).as_dict())
 
 
+#: a machine position beyond this is a typing error (no machine tool's axis is 100 m long)
+_MM = {"ge": -svc.MAX_TRAVEL_MM, "le": svc.MAX_TRAVEL_MM, "allow_inf_nan": False}
+
+
 class JoggedPoint(BaseModel):
-    x_mm: float = Field(allow_inf_nan=False)
-    y_mm: float = Field(allow_inf_nan=False)
-    z_mm: float | None = Field(default=None, allow_inf_nan=False)
+    x_mm: float = Field(**_MM)
+    y_mm: float = Field(**_MM)
+    z_mm: float | None = Field(default=None, **_MM)
 
     def xyz(self) -> list[float]:
         return [self.x_mm, self.y_mm] + ([] if self.z_mm is None else [self.z_mm])
@@ -140,7 +144,7 @@ class TableFrameRequest(BaseModel):
     corner: JoggedPoint = Field(description="1: the table's front-left top corner (its origin), Z required")
     x_edge: JoggedPoint | None = Field(default=None, description="2: a point on the front (x) edge")
     y_edge: JoggedPoint | None = Field(default=None, description="3: a point on the left (y) edge")
-    c_deg: float | None = Field(default=None, allow_inf_nan=False,
+    c_deg: float | None = Field(default=None, ge=-360, le=360, allow_inf_nan=False,
                                 description="C as typed (degrees), used only without edge points")
 
 
