@@ -35,6 +35,35 @@ class NoOffsetYet(ControllerError):
     Not a failure of the link: the slot simply has no value to compare a new offset with."""
 
 
+class PositionUnavailable(ControllerError):
+    """The controller has no way to report where the spindle is (a file drop, an OPC UA server without
+    position nodes): not a failure of the link; the admin types the position the controller shows."""
+
+
+@dataclass(frozen=True)
+class MachinePosition:
+    """Where the tool tip is, in machine coordinates (mm): the frame work offsets are written in.
+
+    ``x_mm, y_mm, z_mm``: the controlled point as the controller's machine-coordinate display shows it,
+    minus the active tool length offset (``tool_offset_mm``, the x/y/z of G43/G43.1), so a point touched
+    with a probe or a tool is where its tip is, whatever tool is loaded.
+    """
+
+    x_mm: float
+    y_mm: float
+    z_mm: float
+    tool_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        values = (self.x_mm, self.y_mm, self.z_mm, *self.tool_offset_mm)
+        if len(self.tool_offset_mm) != 3 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+            raise ValueError(f"machine position must be finite numbers, got {self!r}")
+
+    def as_dict(self) -> dict:
+        return {"x_mm": float(self.x_mm), "y_mm": float(self.y_mm), "z_mm": float(self.z_mm),
+                "tool_offset_mm": [float(v) for v in self.tool_offset_mm]}
+
+
 @dataclass(frozen=True)
 class WorkOffset:
     """A work offset in machine coordinates: translation in mm, rotation about machine Z in degrees."""
@@ -124,6 +153,11 @@ class Controller(Protocol):
 
     def write_offset(self, slot: str, offset: WorkOffset) -> None:
         """Store ``offset`` in ``slot``. Does not read back; the caller does (read_offset)."""
+        ...
+
+    def read_position(self) -> MachinePosition:
+        """Where the tool tip is now, in machine coordinates (mm); never moves the machine.
+        Raises PositionUnavailable when this kind of controller cannot tell."""
         ...
 
     def pause(self) -> None:

@@ -3,7 +3,8 @@
 Write: ``set mdi G10 L2 P<n> X Y Z R`` in MDI mode. Read: LinuxCNC keeps slot ``n`` in the numbered
 parameters ``5201 + 20 n`` + (X 0, Y 1, Z 2, R 9), e.g. G54 = #5221 #5222 #5223 #5230; the adapter
 prints them with an MDI ``(DEBUG, ...)`` message and fetches it with ``get operator_display``
-(linuxcncrsh has no getter for parameters or the G5x rotation). LinuxCNC's R rotates the G5x system
+(linuxcncrsh has no getter for parameters or the G5x rotation). Position: the current position
+#5420-#5422 through the G92 and G5x offsets (see read_position). LinuxCNC's R rotates the G5x system
 counter-clockwise seen from +Z about its origin: ``p_machine = Rz(R) p_program + (X, Y, Z)``, so R is
 our C unchanged (checked against a real sim in tests/machine/test_linuxcnc.py).
 
@@ -14,10 +15,11 @@ error text ("Can't issue MDI command when not homed"). One TCP session per call.
 
 from __future__ import annotations
 
+import math
 import secrets
 import socket
 
-from app.machine.base import ControllerError, WorkOffset, slot_number
+from app.machine.base import ControllerError, MachinePosition, WorkOffset, slot_number
 
 #: decimals written into G10 (what LinuxCNC keeps in its parameter file across restarts)
 WRITE_DECIMALS = 6
@@ -117,26 +119,62 @@ class LinuxCncController:
         finally:
             s.close()
 
+    def _read_numbers(self, s: "_RshSession", params: list[str], what: str) -> list[float]:
+        """Numbered parameters (e.g. ``#5221``) printed by an MDI ``(DEBUG, ...)`` message and fetched with
+        ``get operator_display``: linuxcncrsh has no getter for them. The session must be in MDI."""
+        token = f"setupcam-{secrets.token_hex(4)}"
+        self._mdi(s, f"(DEBUG,{token} {' '.join(f'%.9f{p}' for p in params)})")
+        reply = s.get("operator_display")
+        fields = reply.split()
+        if len(fields) != len(params) + 2 or fields[1] != token:
+            raise self._fail(f"unexpected answer while reading {what}: {reply!r}")
+        try:
+            return [float(v) for v in fields[2:]]
+        except ValueError:
+            raise self._fail(f"unexpected numbers while reading {what}: {reply!r}") from None
+
     def read_offset(self, slot: str) -> WorkOffset:
         p = slot_number(slot)
-        token = f"setupcam-{secrets.token_hex(4)}"
-        params = " ".join(f"%.9f#{n}" for n in _param_numbers(p))
         s = self._session()
         try:
             mode = self._prepare_mdi(s, f"read {slot}")
-            self._mdi(s, f"(DEBUG,{token} {params})")
-            reply = s.get("operator_display")
+            x, y, z, r = self._read_numbers(s, [f"#{n}" for n in _param_numbers(p)], slot)
             self._restore_mode(s, mode)
         finally:
             s.close()
-        fields = reply.split()
-        if len(fields) != 6 or fields[1] != token:
-            raise self._fail(f"unexpected answer while reading {slot}: {reply!r}")
-        try:
-            x, y, z, r = (float(v) for v in fields[2:])
-        except ValueError:
-            raise self._fail(f"unexpected numbers while reading {slot}: {reply!r}") from None
         return WorkOffset(x, y, z, r)
+
+    def read_position(self) -> MachinePosition:
+        """Where the tool tip is, in machine coordinates: LinuxCNC's current position in program
+        coordinates (#5420-#5422, the tip) carried through the G92 offset, the active G5x rotation and
+        origin (``p_machine = g5x + Rz(R) (p + g92)``, the interpreter's own order). ``get abs_act_pos``
+        (``stat.actual_position``, the machine-mode DRO) minus that is the active tool length offset.
+        Never moves the machine; needs it on, homed, idle and in mm like the offset reads."""
+        s = self._session()
+        try:
+            mode = self._prepare_mdi(s, "read the position")
+            active = int(round(self._read_numbers(s, ["#5220"], "the active coordinate system")[0]))
+            if not 1 <= active <= 9:
+                raise self._fail(f"unexpected active coordinate system #5220 = {active}")
+            x, y, z, g92_on, gx, gy, gz, ox, oy, oz, r = self._read_numbers(
+                s, ["#5420", "#5421", "#5422", "#5210", "#5211", "#5212", "#5213", *(f"#{n}" for n in _param_numbers(active))],
+                "the position")
+            actual = s.get("abs_act_pos")
+            self._restore_mode(s, mode)
+        finally:
+            s.close()
+        if g92_on:
+            x, y, z = x + gx, y + gy, z + gz
+        c, si = math.cos(math.radians(r)), math.sin(math.radians(r))
+        tip = (ox + c * x - si * y, oy + si * x + c * y, oz + z)
+        fields = actual.split()
+        try:
+            if fields[0] != "ABS_ACT_POS" or len(fields) < 4:
+                raise ValueError
+            spindle = [float(v) for v in fields[1:4]]  # program units = mm (checked), linuxcncrsh's default
+        except (ValueError, IndexError):
+            raise self._fail(f"unexpected answer while reading the position: {actual!r}") from None
+        return MachinePosition(*tip, tuple(round(a - b, 6) for a, b in zip(spindle, tip)))
 
     def _one_command(self, command: str) -> None:
         s = self._session()

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from app.machine.base import ControllerError, NoOffsetYet, WorkOffset, slot_name, slot_number, wrap_deg
+from app.machine.base import (ControllerError, MachinePosition, NoOffsetYet, PositionUnavailable, WorkOffset, slot_name,
+                              slot_number, wrap_deg)
 
 DIALECTS = ("heidenhain", "fanuc", "siemens", "linuxcnc")
 
@@ -334,6 +335,10 @@ class FileController:
         if got_slot != slot.upper():
             raise self._fail(f"{name} holds {got_slot}, not {slot}")
         return offset
+
+    def read_position(self) -> MachinePosition:
+        raise PositionUnavailable(f"{self.describe}: NC files in a folder are no live link, so the machine's "
+                                  "position cannot be read here; type the position the controller shows")
 
     def pause(self) -> None:
         raise self._fail("a file drop cannot pause the machine")

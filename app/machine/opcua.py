@@ -18,7 +18,7 @@ import concurrent.futures
 import math
 from dataclasses import dataclass, field
 
-from app.machine.base import ControllerError, WorkOffset, slot_number
+from app.machine.base import ControllerError, MachinePosition, PositionUnavailable, WorkOffset, slot_number
 
 AXES = ("x", "y", "z", "c")
 
@@ -46,6 +46,8 @@ class OpcUaSettings:
     password: str | None = None
     pause_method: OpcUaMethod | None = None  # called without arguments (args ignored)
     stop_method: OpcUaMethod | None = None
+    # x, y, z of the tool tip in machine coordinates (mm), e.g. OPC 40502 CNC axes' ActPos; None: not offered
+    position_nodes: dict[str, str] | None = None
 
 
 def _run(coro):
@@ -117,7 +119,12 @@ class OpcUaController:
                 pass
 
     async def _read(self, client, ua, ids: dict[str, str | None]) -> WorkOffset:
-        present = [a for a in AXES if ids[a]]
+        values = await self._read_numbers(client, ua, ids)
+        return WorkOffset(values["x"], values["y"], values["z"], values.get("c", 0.0))
+
+    async def _read_numbers(self, client, ua, ids: dict[str, str | None]) -> dict[str, float]:
+        """The finite numbers held by the node ids present in ``ids`` (keys among x, y, z, c)."""
+        present = [a for a in AXES if ids.get(a)]
         nodes = [client.get_node(ids[a]) for a in present]
         dvs = await client.read_attributes(nodes, ua.AttributeIds.Value)
         values = {}
@@ -128,7 +135,7 @@ class OpcUaController:
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
                 raise self._fail(f"{ids[a]} holds {v!r}, not a number")
             values[a] = float(v)
-        return WorkOffset(values["x"], values["y"], values["z"], values.get("c", 0.0))
+        return values
 
     # -- Controller interface ---------------------------------------------------------------------
     def read_offset(self, slot: str) -> WorkOffset:
@@ -136,6 +143,17 @@ class OpcUaController:
         if self._closed:
             raise self._fail("adapter already closed")
         return _run(self._with_client(lambda client, ua: self._read(client, ua, ids)))
+
+    def read_position(self) -> MachinePosition:
+        ids = self.settings.position_nodes
+        if not ids:
+            raise PositionUnavailable(f"{self.describe}: no position nodes are configured (settings: position_nodes "
+                                      "with x, y, z node ids of the tool tip in machine coordinates); type the "
+                                      "position the controller shows")
+        if self._closed:
+            raise self._fail("adapter already closed")
+        values = _run(self._with_client(lambda client, ua: self._read_numbers(client, ua, ids)))
+        return MachinePosition(values["x"], values["y"], values["z"])
 
     def write_offset(self, slot: str, offset: WorkOffset) -> None:
         ids = self._node_ids(slot)

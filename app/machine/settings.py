@@ -43,6 +43,14 @@ class OpcUaNodes(_Strict):
     c: NodeIdText | None = Field(None, description="rotation about Z; None: the machine takes no rotation")
 
 
+class OpcUaPositionNodes(_Strict):
+    """Where the machine reports its position: x, y, z of the tool tip in machine coordinates, mm."""
+
+    x: NodeIdText
+    y: NodeIdText
+    z: NodeIdText
+
+
 class OpcUaMethodSettings(_Strict):
     object: NodeIdText
     method: NodeIdText
@@ -64,6 +72,8 @@ class OpcUaControllerSettings(_Strict):
     password: str | None = None
     pause_method: OpcUaMethodSettings | None = None
     stop_method: OpcUaMethodSettings | None = None
+    position_nodes: OpcUaPositionNodes | None = Field(
+        None, description="tool tip position in machine coordinates (mm), for Read position on the machines page")
 
     @field_validator("slot")
     @classmethod
@@ -135,7 +145,8 @@ def make_controller(settings: dict | BaseModel) -> Controller:
             endpoint=s.endpoint, nodes=s.nodes.model_dump(), method=method(s.method), slot=s.slot,
             timeout_s=s.timeout_s, rounding_mm=s.rounding_mm, rounding_deg=s.rounding_deg,
             username=s.username, password=s.password,
-            pause_method=method(s.pause_method), stop_method=method(s.stop_method)))
+            pause_method=method(s.pause_method), stop_method=method(s.stop_method),
+            position_nodes=s.position_nodes.model_dump() if s.position_nodes else None))
     from app.machine.nc_files import FileController
 
     return FileController(s.dialect, s.folder)

@@ -47,3 +47,9 @@ def list_entries(session: Session, *, setup_id: int | None = None, action: str |
     if since is not None:
         q = q.where(AuditEntry.at >= since)
     return list(session.exec(q.order_by(col(AuditEntry.id).desc()).limit(limit)).all())
+
+
+def export_refusals(session: Session, setup_id: int) -> list[AuditEntry]:
+    """Exports of a setup refused by a gate before any export row was written (not confirmed,
+    implausible, bad slot, ...), oldest first: the ``export.refused`` entries with their reason."""
+    return list(reversed(list_entries(session, setup_id=setup_id, action="export.refused", limit=10_000)))

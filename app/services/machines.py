@@ -7,10 +7,12 @@ from typing import Any
 
 from sqlmodel import Session, col, select
 
+from app.geometry.table_figure import table_figure_svg
+from app.geometry.table_frame import TableFrameError, table_frame_from_points
 from app.geometry.transforms import PoseError, check_pose
-from app.machine import parse_controller_settings
+from app.machine import ControllerError, PositionUnavailable, make_controller, parse_controller_settings
 from app.services import library
-from app.services.errors import Invalid, NotFound
+from app.services.errors import Conflict, Invalid, NotFound, Unavailable
 from app.store.models import Camera, Machine, utcnow
 
 
@@ -133,3 +135,47 @@ def delete_machine(session: Session, machine_id: int) -> None:
     m = get_machine(session, machine_id)
     m.deleted_at = utcnow()
     session.add(m)
+
+
+def read_position(session: Session, machine_id: int):
+    """Where the machine's tool tip is now (MachinePosition, machine coordinates, mm), read from its
+    saved controller: 409 (code ``position_unavailable``) when that kind of controller cannot tell,
+    502 when it does not answer."""
+    m = get_machine(session, machine_id)
+    if not m.controller:
+        raise Conflict(f"machine {m.id} ({m.name}) has no controller saved; type the position the controller shows",
+                       code="no_controller")
+    controller = make_controller(m.controller)
+    try:
+        return controller.read_position()
+    except PositionUnavailable as exc:
+        raise Conflict(str(exc), code="position_unavailable") from None
+    except ControllerError as exc:
+        raise Unavailable(str(exc)) from None
+    finally:
+        controller.close()
+
+
+def table_frame(session: Session, *, table_model_id: int, table_revision: int | None, corner,
+                x_point=None, y_point=None, c_deg: float | None = None) -> dict:
+    """T_machine_table from jogged points (see app/geometry/table_frame.py) and a top-view SVG of the
+    table model where that puts it, with its markers and the points."""
+    model = library.get_model(session, table_model_id, include_deleted=False)
+    if model.kind != "table":
+        raise Invalid(f"model {table_model_id} ({model.name}) is a {model.kind}, not a table")
+    rev = library.get_revision(session, table_model_id, table_revision)
+    try:
+        fit = table_frame_from_points(corner, x_point, y_point, c_deg)
+    except TableFrameError as exc:
+        raise Invalid(str(exc)) from None
+    lo, hi = rev.summary.get("bbox_min_mm"), rev.summary.get("bbox_max_mm")
+    if not lo or not hi:
+        raise Invalid(f"table model {table_model_id} revision {rev.revision} has no extent on record")
+    markers = [(m["id"], (m["T_table_marker"][0][3], m["T_table_marker"][1][3]), m["size_mm"])
+               for m in (rev.fiducials or {}).get("markers", [])]
+    points = [(label, p[:2]) for label, p in (("1", corner), ("2", x_point), ("3", y_point)) if p is not None]
+    T = fit.T_machine_table
+    return {"T_machine_table": T.tolist(), "x_mm": float(T[0, 3]), "y_mm": float(T[1, 3]), "z_mm": float(T[2, 3]),
+            "c_deg": fit.c_deg, "notes": list(fit.notes), "edge_disagreement_deg": fit.edge_disagreement_deg,
+            "c_sensitivity_deg_per_mm": fit.c_sensitivity_deg_per_mm,
+            "svg": table_figure_svg(lo, hi, T, markers=markers, points=points, title=f"{model.name} on the machine")}

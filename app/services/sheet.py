@@ -172,8 +172,8 @@ def write_sheet_offset(session: Session, machine, alignment_id: int, offset_bed:
 
     ``action`` is ``sheet.export`` or ``sheet.redatum`` (the audit prefix). Returns {status:
     verified|mismatch|failed, slot, before, written, read_back, reason}; raises Unavailable when the
-    controller cannot be read before writing (also when it holds no offset there yet: there is no Z to
-    keep), Invalid when the offset lies outside the machine's travel in X or Y.
+    controller cannot be read before writing, Conflict (code ``no_offset_yet``) when it holds no offset
+    there yet (there is no Z to keep), Invalid when the offset lies outside the machine's travel in X or Y.
     """
     controller = open_controller(machine)
     ids = {"machine_id": machine.id, "alignment_id": alignment_id}
@@ -184,9 +184,10 @@ def write_sheet_offset(session: Session, machine, alignment_id: int, offset_bed:
         session.commit()
 
     def target(before: WorkOffset | None, empty: str) -> WorkOffset:
-        if before is None:  # the sheet keeps the slot's Z: with none there, nothing can be written
-            unreachable(ControllerError(empty))
-            raise Unavailable(f"{empty}; nothing was written")
+        if before is None:  # the controller answered and holds nothing there: a note with what to do
+            raise Conflict(f"{empty}: the sheet alignment keeps the slot's Z, so write a full offset to {slot} "
+                           "first (a setup's export, or at the controller); nothing was written",
+                           code="no_offset_yet")
         off = machine_offset(machine, offset_bed, thickness_mm, before.z_mm)
         if reasons := travel_reasons(machine, off, "xy"):
             raise Invalid("offset refused: " + "; ".join(reasons))

@@ -222,10 +222,15 @@ def move_objects(handles: SceneHandles, view: SetupView) -> None:
         handles.frustum.image = _downscale(view.camera.image_rgb, FRUSTUM_IMAGE_WIDTH_PX)
 
 
-def initial_camera(view: SetupView) -> tuple[np.ndarray, np.ndarray]:
+#: viser's default vertical field of view (its client camera starts with 75 degrees)
+VIEWER_FOV_RAD = np.radians(75.0)
+
+
+def initial_camera(view: SetupView, fov_rad: float | None = None, aspect: float = 16 / 9) -> tuple[np.ndarray, np.ndarray]:
     """(position, look_at) in m for the browser's first view: the table and the parts from 40 deg above
     the table, turned 70 deg about z from the real camera's line of sight (so its frustum is seen from
-    the side, not looked through)."""
+    the side, not looked through), just far enough that the sphere around the table and the parts fits
+    the narrower of the vertical field of view ``fov_rad`` and the horizontal one (``aspect`` = w / h)."""
     centre, radius = scene_extent_m(view)
     az = np.radians(-60.0)
     if view.camera is not None:
@@ -233,4 +238,6 @@ def initial_camera(view: SetupView) -> tuple[np.ndarray, np.ndarray]:
         az = np.arctan2(cam[1] - centre[1], cam[0] - centre[0]) + np.radians(70.0)
     el = np.radians(40.0)
     d = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    return centre + d * radius * 1.7, centre
+    vfov = float(fov_rad) if fov_rad and 0 < fov_rad < np.pi else VIEWER_FOV_RAD
+    half = min(vfov / 2, np.arctan(np.tan(vfov / 2) * max(aspect, 1e-3)))
+    return centre + d * radius * 1.05 / np.sin(half), centre

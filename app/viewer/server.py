@@ -173,7 +173,8 @@ class ViewerServer:
         elif kind == "setup" and view.editable is not None:
             view = dataclasses.replace(view, editable=None)
         handles = build_setup_scene(client.scene, view, on_move)
-        pos, look = initial_camera(view)
+        cam = client.camera  # a client that has not reported its camera yet says fov 0: the default then
+        pos, look = initial_camera(view, getattr(cam, "fov", None) or None, getattr(cam, "aspect", None) or 16 / 9)
         client.camera.position = tuple(pos)
         client.camera.look_at = tuple(look)
         with self._lock:

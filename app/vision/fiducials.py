@@ -53,6 +53,7 @@ from scipy.spatial.transform import Rotation
 
 from app.geometry.transforms import check_pose, make_pose, rvec_tvec_to_pose, transform_points
 from app.vision.intrinsics import distort_px, undistort_px
+from app.vision.overlay_text import put_banner, put_label, style_for
 
 # ---------------------------------------------------------------------------------------------
 # Results
@@ -579,21 +580,19 @@ def draw_table(image: np.ndarray, result: TablePose | TableFailure, K: np.ndarra
     """BGR picture: used markers green, rejected red (with ids and reasons' short form), and the
     table axes (x red, y green, z blue) when the pose and ``K`` are known."""
     out = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-    scale = max(0.5, out.shape[1] / 1600)
-    th = max(1, int(round(2 * scale)))
+    style = style_for(out)
+    th = style.thickness
     corners = getattr(result, "corners_px", {}) or {}
     for i, c in corners.items():
         pts = np.round(np.asarray(c) * 16).astype(np.int32)
         cv2.polylines(out, [pts], True, (0, 200, 0), th, cv2.LINE_AA, shift=4)
-        cv2.putText(out, str(i), tuple(np.round(np.asarray(c).mean(0)).astype(int)),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, (0, 200, 0), th, cv2.LINE_AA)
+        put_label(out, str(i), tuple(np.round(np.asarray(c).mean(0)).astype(int)), (0, 200, 0), style)
     for rj in getattr(result, "ids_rejected", ()):
         if rj.corners_px is None:
             continue
         pts = np.round(np.asarray(rj.corners_px) * 16).astype(np.int32)
         cv2.polylines(out, [pts], True, (0, 0, 255), th, cv2.LINE_AA, shift=4)
-        cv2.putText(out, f"{rj.id}", tuple(np.round(rj.corners_px.mean(0)).astype(int)),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, (0, 0, 255), th, cv2.LINE_AA)
+        put_label(out, f"{rj.id}", tuple(np.round(rj.corners_px.mean(0)).astype(int)), (0, 0, 255), style)
     if result:
         K = result.K if K is None else K
         dist = result.dist if dist is None else dist
@@ -603,6 +602,5 @@ def draw_table(image: np.ndarray, result: TablePose | TableFailure, K: np.ndarra
                           rvec, result.T_cam_table[:3, 3], axis_mm, th + 1)
     text = (f"table: {len(result.ids_used)} markers, RMS {result.rms_px:.2f} px" if result
             else result.reason)
-    cv2.putText(out, text[:120], (10, int(30 * scale)), cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale,
-                (0, 200, 0) if result else (0, 0, 255), th, cv2.LINE_AA)
+    put_banner(out, text, (0, 200, 0) if result else (0, 0, 255))
     return out

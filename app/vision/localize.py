@@ -25,6 +25,7 @@ from app.geometry.support_surfaces import CARRYING_KINDS
 from app.vision import object_pose
 from app.vision.blas_threads import one_blas_thread
 from app.vision.fiducials import draw_table, locate_table
+from app.vision.overlay_text import put_banner, put_label, style_for
 
 FIXTURE_KINDS = CARRYING_KINDS                 # clamps and supports: they carry parts
 # Fixtures are often half hidden by the part they hold (jaws, parallels under it): they are accepted
@@ -116,13 +117,25 @@ def marker_labels_table(layout: dict, scale: float = 1.4) -> list[np.ndarray]:
 
 
 def draw_overlay(image: np.ndarray, K, dist, table_result, located: list[tuple[Candidate, Any]]) -> np.ndarray:
-    """The operator's picture: markers (used green, rejected red) and each object's fitted edges."""
+    """The operator's picture: markers (used green, rejected red) and each object's fitted edges with its
+    name, score and position; a failure as its best candidate in red with the reason. Text and dots are
+    sized to the picture (overlay_text), so they read at full HD too."""
     out = draw_table(image, table_result) if table_result is not None else (
         image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
     T_cam_table = getattr(table_result, "T_cam_table", None)
+    banner = 1  # line 0 holds the table's summary
     for i, (cand, pose) in enumerate(located):
-        out = object_pose.draw_object(out, K, dist, pose, cand.prepare(), color=COLOURS[i % len(COLOURS)],
-                                      T_cam_table=T_cam_table)
+        if isinstance(pose, object_pose.ObjectPose):
+            T = pose.T_table_obj
+            label = (f"{pose.model_name} {pose.score:.0%} x{T[0, 3]:.1f} y{T[1, 3]:.1f} "
+                     f"C{np.degrees(np.arctan2(T[1, 0], T[0, 0])):.2f}")
+            out = draw_model_edges(out, K, dist, pose.T_cam_obj, cand.prepare(), COLOURS[i % len(COLOURS)], label)
+        elif pose.candidates and T_cam_table is not None:
+            T_cam_obj = np.asarray(T_cam_table) @ np.asarray(pose.candidates[0]["T_table_obj"])
+            out = draw_model_edges(out, K, dist, T_cam_obj, cand.prepare(), (0, 0, 255), pose.reason[:120])
+        else:
+            put_banner(out, pose.reason, (0, 0, 255), line=banner)
+            banner += 1
     return out
 
 
@@ -322,19 +335,21 @@ def _carrier(surfaces, pose, cand) -> tuple[str, ...]:
 
 def draw_model_edges(image: np.ndarray, K, dist, T_cam_obj: np.ndarray, model: PreparedModel, colour,
                      label: str = "") -> np.ndarray:
-    """Draw a model's visible edges at ``T_cam_obj`` (hidden lines removed) with a label."""
+    """Draw a model's visible edges at ``T_cam_obj`` (hidden lines removed) with a label above them,
+    dots and text sized to the picture."""
     from app.geometry.model_edges import visible_edge_samples
 
     out = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     H, W = out.shape[:2]
+    style = style_for(out)
     es = visible_edge_samples(model, np.asarray(T_cam_obj, float), np.asarray(K, float),
-                              np.asarray(dist, float), W, H, occlusion_test=True)
+                              np.zeros(5) if dist is None else np.asarray(dist, float), W, H, occlusion_test=True)
     for u, v in es.uv_px:
-        cv2.circle(out, (int(round(u * 4)), int(round(v * 4))), 4, colour, -1, lineType=cv2.LINE_AA, shift=2)
+        cv2.circle(out, (int(round(u * 4)), int(round(v * 4))), 4 * style.dot_px, colour, -1,
+                   lineType=cv2.LINE_AA, shift=2)
     if label and len(es.uv_px):
         u0, v0 = es.uv_px.min(axis=0)
-        cv2.putText(out, label, (int(u0), max(15, int(v0) - 8)), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1,
-                    cv2.LINE_AA)
+        put_label(out, label, (int(u0), max(style.line_px, int(v0) - style.line_px // 3)), colour, style)
     return out
 
 

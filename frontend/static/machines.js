@@ -12,14 +12,44 @@ function poseFromFields() {
           [0, 0, 1, Number($("t-z").value)], [0, 0, 0, 1]];
 }
 
-/** C (deg) of the table's x edge from the corner (fields X, Y) to a second point on that edge. */
-function angleFromPoints() {
-  const dx = Number($("p2-x").value) - Number($("t-x").value), dy = Number($("p2-y").value) - Number($("t-y").value);
-  const len = Math.hypot(dx, dy);
-  if (!($("p2-x").value && $("p2-y").value) || len < 50) {
-    throw new Error("Type the second point's X and Y: a point on the table's front edge at least 50 mm from the corner.");
+/** A jogged point from its X, Y, Z fields (Z optional unless `needZ`), or null when X and Y are empty. */
+function pointFromFields(prefix, needZ = false) {
+  const v = (a) => $(`${prefix}-${a}`).value.trim();
+  if (!v("x") && !v("y") && !v("z")) return null;
+  const p = { x_mm: Number(v("x")), y_mm: Number(v("y")) };
+  if (v("z") || needZ) p.z_mm = Number(v("z"));
+  return p;
+}
+
+/** Ask the service for the table's pose from the points (and C as typed when no edge point is given),
+ *  show its picture and notes; with `fill`, put the pose into the X, Y, Z, C fields. */
+async function workOutPose(fill) {
+  const table = Number($("m-table").value);
+  if (!table) return;
+  const body = { table_model_id: table, corner: pointFromFields("t", true), x_edge: pointFromFields("p2"),
+                 y_edge: pointFromFields("p3"), c_deg: Number($("t-c").value) };
+  const r = await postJSON("/api/v1/machines/table-frame", body);
+  if (fill) $("t-c").value = +r.c_deg.toFixed(4);
+  $("frame-notes").replaceChildren(...r.notes.map((n) => el("li", { text: n })));
+  $("table-figure").src = "data:image/svg+xml;charset=utf-8," + encodeURIComponent(r.svg);
+  $("table-figure").classList.remove("hidden");
+  return r;
+}
+
+/** Read where the tool tip is from the saved controller into point `n`'s fields. */
+async function readPoint(n) {
+  const m = state.editing, prefix = n === "1" ? "t" : `p${n}`;
+  say("#read-msg", `Reading the position for point ${n}…`, "info");
+  try {
+    const p = await api(`/api/v1/machines/${m.id}/position`);
+    $(`${prefix}-x`).value = +p.x_mm.toFixed(4); $(`${prefix}-y`).value = +p.y_mm.toFixed(4);
+    $(`${prefix}-z`).value = +p.z_mm.toFixed(4);
+    const tool = p.tool_offset_mm.some((v) => Math.abs(v) > 1e-6)
+      ? ` (tool length offset ${p.tool_offset_mm.map((v) => fmt(v, 3)).join(" / ")} mm taken off)` : "";
+    say("#read-msg", `Point ${n}: X ${fmt(p.x_mm, 3)} Y ${fmt(p.y_mm, 3)} Z ${fmt(p.z_mm, 3)} mm${tool}.`, "ok");
+  } catch (e) {
+    say("#read-msg", e.status === 409 ? e.message : `Could not read the position: ${e.message}`, e.status === 409 ? "warn" : "bad");
   }
-  return { c: Math.atan2(dy, dx) * 180 / Math.PI, len };
 }
 
 function fieldsFromPose(T) {
@@ -53,6 +83,13 @@ function fillForm(m) {
     el("input", { type: "checkbox", value: c.id, checked: m ? m.camera_ids.includes(c.id) : state.cameras.length === 1 }), c.name)));
   if (!state.cameras.length) $("m-cameras").append(el("a", { href: "/cameras", text: "add a camera first" }));
   fieldsFromPose(m ? m.T_machine_table : [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]);
+  for (const id of ["p2-x", "p2-y", "p2-z", "p3-x", "p3-y", "p3-z"]) $(id).value = "";
+  for (const b of document.querySelectorAll(".read-pos")) {
+    b.disabled = !(m && m.controller);
+    b.title = m && m.controller ? "Read where the tool tip is now from the saved controller"
+                                : "Save the machine with a controller first (or type the position)";
+  }
+  say("#read-msg", ""); $("frame-notes").replaceChildren(); $("table-figure").classList.add("hidden");
   for (const a of AXES) {
     if (m) { $(`tr-${a}0`).value = m.travel_mm[a][0]; $(`tr-${a}1`).value = m.travel_mm[a][1]; }
   }
@@ -70,6 +107,7 @@ function fillForm(m) {
   say("#form-msg", "");
   $("machine-form").classList.remove("hidden");
   $("machine-form").scrollIntoView({ block: "nearest" });
+  workOutPose(false).catch(() => {});  // the saved pose's picture; a bad field shows its reason on Work out
 }
 
 function drawCards() {
@@ -101,13 +139,13 @@ async function load() {
 }
 
 $("c-kind").addEventListener("change", showControllerFields);
-$("from-points").addEventListener("click", () => {
+$("from-points").addEventListener("click", async () => {
   try {
-    const { c, len } = angleFromPoints();
-    $("t-c").value = +c.toFixed(4);
-    say("#form-msg", `C = ${fmt(c, 4)}° from two points ${fmt(len, 1)} mm apart (1 mm of error at the second point moves C by ${fmt(180 / Math.PI / len, 3)}°).`, "ok");
+    const r = await workOutPose(true);
+    say("#form-msg", `Table origin X ${fmt(r.x_mm, 3)} Y ${fmt(r.y_mm, 3)} Z ${fmt(r.z_mm, 3)} mm, C ${fmt(r.c_deg, 4)}°: check the picture, then Save.`, "ok");
   } catch (e) { say("#form-msg", e.message, "bad"); }
 });
+for (const b of document.querySelectorAll(".read-pos")) b.addEventListener("click", () => readPoint(b.dataset.point));
 $("add").addEventListener("click", () => fillForm(null));
 $("close").addEventListener("click", () => $("machine-form").classList.add("hidden"));
 $("machine-form").addEventListener("submit", async (ev) => {

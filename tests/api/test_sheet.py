@@ -158,6 +158,21 @@ def test_export_writes_xy_c_to_linuxcnc_and_keeps_z(server, lcnc, exported):
         assert "sheet.export.write" in actions and "sheet.export.verified" in actions and "sheet.confirm" in actions
 
 
+def test_export_to_a_slot_never_written_is_a_note_not_a_502(server, camera, bed_image, tmp_path):
+    """A file controller that holds nothing for G54 yet: the alignment cannot keep a Z it does not
+    have, so the export is refused (409, code no_offset_yet) with what to do, and nothing is written."""
+    with server.client() as c:
+        m = make_machine(c, {"kind": "file", "dialect": "linuxcnc", "folder": str(tmp_path)},
+                         T_machine_table=T_MACHINE_BED, travel=TRAVEL)
+    with server.client("operator") as c:
+        a = align(c, m["id"], camera["id"], _jpg(bed_image.image)).json()
+        assert c.post(f"/api/v1/sheet/alignments/{a['id']}/confirm").status_code == 200
+        r = c.post(f"/api/v1/sheet/alignments/{a['id']}/export", json={"slot": "G54"})
+        assert r.status_code == 409 and r.json()["code"] == "no_offset_yet", r.text
+        assert "written yet for G54" in r.json()["detail"] and "write a full offset to G54 first" in r.json()["detail"]
+    assert list(tmp_path.iterdir()) == []
+
+
 def _read_sse(url: str, token: str, out: list, timeout_s: float = 120.0) -> None:
     with httpx.stream("GET", url, headers={"Authorization": f"Bearer {token}"}, timeout=timeout_s) as r:
         event = None

@@ -146,6 +146,8 @@ def test_new_admin_sets_up_a_machine_through_the_pages(service, browser, lcnc):
         mf.get_by_test_id("machine-point2-x").fill(f"{T_TABLE_CORNER[0] + d[0]:.3f}")
         mf.get_by_test_id("machine-point2-y").fill(f"{T_TABLE_CORNER[1] + d[1]:.3f}")
         mf.get_by_test_id("machine-from-points").click()
+        page.wait_for_function("c => Math.abs(Number(document.querySelector('[data-testid=machine-table-c]').value)"
+                               " - c) < 1e-3", arg=c_deg)
         assert float(mf.get_by_test_id("machine-table-c").input_value()) == pytest.approx(c_deg, abs=1e-3)
     for axis, (lo, hi) in {"x": (-600, 600), "y": (-400, 400), "z": (-500, 0)}.items():
         mf.locator(f"#tr-{axis}0").fill(str(lo))

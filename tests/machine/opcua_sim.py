@@ -6,6 +6,8 @@ Address space (namespace ``urn:setupcam:test:machine``, index 2):
   Objects/MachineTool/SetWorkOffset(Slot: String, X, Y, Z, C: Double) -> Ok: Boolean
       node id ``ns=2;s=SetWorkOffset`` on object ``ns=2;s=MachineTool``.
   ``ns=2;s=G54F.{X,Y,Z,C}``  Float (single precision) variables, to show float rounding.
+  Objects/MachineTool/Position/{X,Y,Z}  Double, writable (a test "jogs" by writing them), node ids
+      ``ns=2;s=Position.<axis>``: the tool tip in machine coordinates, mm.
   Objects/MachineTool/Pause(), Stop() -> Ok set ``ns=2;s=ProgramState`` to "paused" / "stopped".
 
 Usage: python opcua_sim.py PORT [--die-on-write]
@@ -48,6 +50,12 @@ async def main(port: int, die_on_write: bool) -> None:
     for axis in "XYZC":
         v = await fobj.add_variable(ua.NodeId(f"G54F.{axis}", idx), ua.QualifiedName(axis, idx),
                                     ua.Variant(0.0, ua.VariantType.Float))
+        await v.set_writable()
+
+    pos = await mt.add_object(ua.NodeId("Position", idx), ua.QualifiedName("Position", idx))
+    for axis in "XYZ":
+        v = await pos.add_variable(ua.NodeId(f"Position.{axis}", idx), ua.QualifiedName(axis, idx), 0.0,
+                                   varianttype=ua.VariantType.Double)
         await v.set_writable()
 
     @uamethod

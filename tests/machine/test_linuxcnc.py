@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from app.machine.base import ControllerError, WorkOffset
+from app.machine.base import ControllerError, MachinePosition, WorkOffset
 from app.machine.linuxcnc import LinuxCncController
 
 pytestmark = pytest.mark.integration
@@ -67,6 +67,35 @@ def test_rotation_sign_matches_our_c(linuxcnc_sim, controller):
     expect = offset.to_pose() @ np.array([5.0, 2.0, 1.0, 1.0])
     assert status["position"] == pytest.approx(expect[:3].tolist(), abs=1e-6)
     linuxcnc_sim.mdi("G53 G0 X0 Y0 Z0")
+
+
+def test_read_position_is_the_tool_tip_in_machine_coordinates(linuxcnc_sim, controller):
+    """Jogged (G53 moves by MDI) to a point, the adapter reads LinuxCNC's actual position; with a tool
+    length offset active (G43.1) it reports the tip, not the spindle; G5x offsets do not matter."""
+    try:
+        linuxcnc_sim.mdi("G10 L2 P1 X100 Y50 Z-5 R10")   # a rotated work offset must not leak into the answer
+        linuxcnc_sim.mdi("G54")
+        status = linuxcnc_sim.mdi("G53 G0 X-123.4567 Y211.25 Z-40.125")
+        assert status["actual_position"] == pytest.approx([-123.4567, 211.25, -40.125], abs=1e-4)
+        got = controller.read_position()
+        assert isinstance(got, MachinePosition)
+        assert (got.x_mm, got.y_mm, got.z_mm) == pytest.approx((-123.4567, 211.25, -40.125), abs=1e-4)
+        assert got.tool_offset_mm == pytest.approx((0.0, 0.0, 0.0), abs=1e-4)
+        status = linuxcnc_sim.mdi("G43.1 Z52.5")
+        assert status["tool_offset"][2] == pytest.approx(52.5)
+        got = controller.read_position()
+        assert (got.x_mm, got.y_mm, got.z_mm) == pytest.approx((-123.4567, 211.25, -40.125 - 52.5), abs=1e-4)
+        assert got.tool_offset_mm == pytest.approx((0.0, 0.0, 52.5), abs=1e-4)
+        st = linuxcnc_sim.mdi("G92 X1 Y2 Z3")           # a G92 offset changes nothing either
+        assert st["g92_offset"] != [0.0, 0.0, 0.0]
+        again = controller.read_position()
+        assert (again.x_mm, again.y_mm, again.z_mm) == pytest.approx((got.x_mm, got.y_mm, got.z_mm), abs=1e-6)
+        assert linuxcnc_sim.status()["actual_position"] == pytest.approx([-123.4567, 211.25, -40.125], abs=1e-4)
+    finally:
+        linuxcnc_sim.mdi("G92.1")
+        linuxcnc_sim.mdi("G49")
+        linuxcnc_sim.mdi("G10 L2 P1 X0 Y0 Z0 R0")
+        linuxcnc_sim.mdi("G53 G0 X0 Y0 Z0")
 
 
 def test_pause_and_stop_a_running_program(linuxcnc_sim, controller):

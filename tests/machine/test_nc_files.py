@@ -148,3 +148,10 @@ def test_file_controller_refusals(tmp_path):
         c.read_offset("G54")
     with pytest.raises(ControllerError, match="cannot pause"):
         c.pause()
+
+
+def test_file_controller_cannot_read_the_position(tmp_path):
+    from app.machine.base import PositionUnavailable
+
+    with pytest.raises(PositionUnavailable, match="type the position the controller shows"):
+        FileController("linuxcnc", tmp_path).read_position()

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from app.machine.base import ControllerError, WorkOffset
+from app.machine.base import ControllerError, MachinePosition, PositionUnavailable, WorkOffset
 from app.machine.settings import make_controller
 
 pytestmark = pytest.mark.integration
@@ -51,6 +51,15 @@ class OpcUaSim:
 
         with Client(self.endpoint, timeout=5) as c:
             return [c.get_node(n).read_value() for n in node_ids]
+
+    def write(self, values: dict[str, float]) -> None:
+        """Independent write of Double variables (e.g. "jog" the position nodes)."""
+        from asyncua import ua
+        from asyncua.sync import Client
+
+        with Client(self.endpoint, timeout=5) as c:
+            for node, value in values.items():
+                c.get_node(node).write_value(ua.Variant(float(value), ua.VariantType.Double))
 
     def stop(self) -> None:
         if self.proc.poll() is None:
@@ -193,3 +202,14 @@ def test_usable_from_inside_a_running_event_loop(opcua_sim):
         return c.read_offset("G58")
 
     assert asyncio.run(from_async()) == WorkOffset(4, 5, 6, 7)
+
+
+def test_position_is_read_from_the_configured_nodes(opcua_sim):
+    opcua_sim.write({"ns=2;s=Position.X": 312.125, "ns=2;s=Position.Y": -40.5, "ns=2;s=Position.Z": -287.75})
+    c = make_controller(_settings(opcua_sim, position_nodes={a: f"ns=2;s=Position.{a.upper()}" for a in "xyz"}))
+    assert c.read_position() == MachinePosition(312.125, -40.5, -287.75)
+
+
+def test_position_without_nodes_is_unavailable_with_the_setting_to_add(opcua_sim):
+    with pytest.raises(PositionUnavailable, match="no position nodes are configured.*position_nodes"):
+        make_controller(_settings(opcua_sim)).read_position()

@@ -129,6 +129,34 @@ def test_initial_camera_looks_at_the_scene_from_above():
     assert g["T_table_cam"][:3, 3] == pytest.approx(inv(v.camera.T_cam_table)[:3, 3])
 
 
+def _look_at_camera(pos, look):
+    """World-to-camera rotation (rows: right, up, backward) of a camera at ``pos`` looking at ``look``, z up."""
+    fwd = (look - pos) / np.linalg.norm(look - pos)
+    right = np.cross(fwd, [0, 0, 1.0])
+    right /= np.linalg.norm(right)
+    return np.vstack([right, np.cross(right, fwd), -fwd])
+
+
+@pytest.mark.parametrize("fov_deg,aspect", [(75.0, 16 / 9), (50.0, 4 / 3), (75.0, 0.6)])
+def test_initial_view_frames_the_table_and_the_parts(fov_deg, aspect):
+    """Every corner of the table and of each part lies inside the first view (a pinhole with the viewer's
+    field of view), and together they fill a good part of it: framed, not lost in the distance."""
+    v = view(np.random.default_rng(2))
+    pos, look = initial_camera(v, np.radians(fov_deg), aspect)
+    R = _look_at_camera(pos, look)
+    corners = []
+    for mesh, T in [(v.table_mesh, np.eye(4))] + [(o.mesh, o.T_table_obj) for o in v.objects]:
+        b = np.asarray(mesh.bounds)
+        c = np.array([[x, y, z] for x in b[:, 0] for y in b[:, 1] for z in b[:, 2]])
+        corners.append(c @ np.asarray(T)[:3, :3].T + np.asarray(T)[:3, 3])
+    p = (np.vstack(corners) * M_PER_MM - pos) @ R.T
+    assert np.all(p[:, 2] < 0), "everything in front of the camera"
+    t = np.tan(np.radians(fov_deg) / 2)
+    u, w = p[:, 0] / -p[:, 2] / (t * aspect), p[:, 1] / -p[:, 2] / t     # -1..1 across the view
+    assert np.all(np.abs(u) <= 1) and np.all(np.abs(w) <= 1), (u.min(), u.max(), w.min(), w.max())
+    assert max(u.max() - u.min(), w.max() - w.min()) > 1.0, "the scene fills at least half the view"
+
+
 @pytest.mark.parametrize("path,expected", [("/setup/5", ("setup", 5)), ("setup/12/", ("setup", 12)),
                                            ("/model/3?x=1", ("model", 3)), ("/", None), ("/setup/x", None),
                                            ("/other/1", None)])

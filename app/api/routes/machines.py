@@ -110,6 +110,65 @@ def read_offset(session: SessionDep, machine_id: int, slot: str) -> OffsetPublic
     return OffsetPublic(slot=slot.upper(), **read_current_offset(session, machine_id, slot.upper()).as_dict())
 
 
+class PositionPublic(BaseModel):
+    x_mm: float = Field(description="tool tip, machine coordinates")
+    y_mm: float
+    z_mm: float
+    tool_offset_mm: list[float] = Field(description="the active tool length offset (x, y, z) taken off, mm")
+
+
+@router.get("/{machine_id}/position", response_model=PositionPublic,
+            summary="Where the tool tip is now, in machine coordinates (read live from the controller)",
+            responses={409: {"description": "this controller cannot report its position (code position_unavailable)"},
+                       502: {"description": "controller unreachable"}})
+def read_position(session: SessionDep, machine_id: int) -> PositionPublic:
+    return PositionPublic(**svc.read_position(session, machine_id).as_dict())
+
+
+#: a machine position beyond this is a typing error (no machine tool's axis is 100 m long)
+_MM = {"ge": -svc.MAX_TRAVEL_MM, "le": svc.MAX_TRAVEL_MM, "allow_inf_nan": False}
+
+
+class JoggedPoint(BaseModel):
+    x_mm: float = Field(**_MM)
+    y_mm: float = Field(**_MM)
+    z_mm: float | None = Field(default=None, **_MM)
+
+    def xyz(self) -> list[float]:
+        return [self.x_mm, self.y_mm] + ([] if self.z_mm is None else [self.z_mm])
+
+
+class TableFrameRequest(BaseModel):
+    table_model_id: int
+    table_revision: int | None = None
+    corner: JoggedPoint = Field(description="1: the table's front-left top corner (its origin), Z required")
+    x_edge: JoggedPoint | None = Field(default=None, description="2: a point on the front (x) edge")
+    y_edge: JoggedPoint | None = Field(default=None, description="3: a point on the left (y) edge")
+    c_deg: float | None = Field(default=None, ge=-360, le=360, allow_inf_nan=False,
+                                description="C as typed (degrees), used only without edge points")
+
+
+class TableFramePublic(BaseModel):
+    T_machine_table: list[list[float]]
+    x_mm: float
+    y_mm: float
+    z_mm: float
+    c_deg: float
+    notes: list[str]
+    edge_disagreement_deg: float | None
+    c_sensitivity_deg_per_mm: float | None
+    svg: str = Field(description="top view of the table at this pose with its frame and the points (SVG)")
+
+
+@router.post("/table-frame", response_model=TableFramePublic,
+             summary="T_machine_table from jogged points of the table (corner, front edge, left edge), with a picture")
+def table_frame(session: SessionDep, body: TableFrameRequest) -> TableFramePublic:
+    return TableFramePublic(**svc.table_frame(
+        session, table_model_id=body.table_model_id, table_revision=body.table_revision, corner=body.corner.xyz(),
+        x_point=body.x_edge.xyz() if body.x_edge else None, y_point=body.y_edge.xyz() if body.y_edge else None,
+        c_deg=body.c_deg))
+
+
 @router.delete("/{machine_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
                summary="Remove a machine (soft delete)")
 def delete_machine(session: SessionDep, admin: AdminPrincipal, machine_id: int) -> Response:

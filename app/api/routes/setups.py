@@ -15,6 +15,7 @@ from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionD
 from app.api.uploads import read_image_upload
 from app.services import export as export_svc
 from app.services import setups as svc
+from app.services.audit import export_refusals
 from app.services.errors import Invalid, NotFound
 from app.services.transaction import transaction
 
@@ -273,3 +274,18 @@ def export(request: Request, session: SessionDep, settings: SettingsDep, who: Op
 @router.get("/{setup_id}/exports", response_model=list[ExportPublic], summary="Exports of a setup")
 def list_exports(session: SessionDep, setup_id: int) -> list[ExportPublic]:
     return [export_public(r) for r in export_svc.list_exports(session, setup_id)]
+
+
+class ExportRefusalPublic(BaseModel):
+    slot: str
+    reason: str
+    actor: str
+    at: datetime
+
+
+@router.get("/{setup_id}/export-refusals", response_model=list[ExportRefusalPublic],
+            summary="Exports of a setup refused before anything was written, with the reason")
+def list_export_refusals(session: SessionDep, setup_id: int) -> list[ExportRefusalPublic]:
+    svc.get_setup(session, setup_id)
+    return [ExportRefusalPublic(slot=str(e.detail.get("slot", "")), reason=str(e.detail.get("reason", "")),
+                                actor=e.actor, at=e.at) for e in export_refusals(session, setup_id)]
