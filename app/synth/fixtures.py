@@ -9,10 +9,12 @@ library's (:func:`app.geometry.parts.example_library`). All poses ``T_table_obj`
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import trimesh
 
-from app.geometry.transforms import make_pose, pose_from_xyz_euler
+from app.geometry.transforms import make_pose, pose_from_xyz_euler, transform_points
 from app.synth.scene import SceneObject, place_on_table
 
 MODES = ("table", "vise", "parallels")
@@ -83,6 +85,33 @@ def in_vise(rng, name: str, mesh: trimesh.Trimesh, vise: trimesh.Trimesh, vise_n
 WORKPIECES = ("pin_block_32", "flange_plate_80", "bracket_140", "base_plate_300")
 
 
+# Scenes from this index on add shop conditions (shop_conditions); the ones before keep theirs.
+SHOP_FROM = 24
+
+
+def shop_conditions(k: int, objs: list[SceneObject]) -> dict:
+    """What scene ``k`` adds to the fixture set: a spindle with its tool above the part (in view
+    from most angles), vignetting (30-60 % darker in the corners), a low lamp (hard long shadows),
+    every other scene a dark part on a dark table, and every other one a low camera (20-35 deg).
+    Drawn from a generator of their own, so the scene's other draws stay as they were."""
+    rng = np.random.default_rng(9000 + k)
+    part = objs[0]
+    top = float(transform_points(part.T_table_obj, part.mesh.vertices)[:, 2].max())
+    c = part.T_table_obj[:3, 3]
+    z0 = top + rng.uniform(60.0, 200.0)
+    spindle = trimesh.util.concatenate([
+        trimesh.creation.cylinder(radius=5.0, height=60.0, sections=24, transform=make_pose(None, [0, 0, 30.0])),
+        trimesh.creation.cylinder(radius=40.0, height=250.0, sections=48, transform=make_pose(None, [0, 0, 185.0]))])
+    off = rng.uniform(-60.0, 60.0, 2)
+    out = list(objs) + [SceneObject("spindle", spindle, make_pose(None, [c[0] + off[0], c[1] + off[1], z0]),
+                                    albedo=0.6)]
+    dark = bool(k % 2 == 0)
+    if dark:
+        out[0] = dataclasses.replace(part, albedo=float(rng.uniform(0.15, 0.28)))
+    return {"objects": out, "rng": rng, "vignetting": float(rng.uniform(0.3, 0.6)), "low_view": bool(k % 4 < 2),
+            "table_albedo": 0.28 if dark else 0.42}
+
+
 def synth_entry(k: int) -> dict:
     """Scene k of the generated set: the fixture mode cycles table / vise / parallels, the workpiece
     cycles through the example library's four."""
@@ -119,17 +148,27 @@ def synth_scene(entry: dict, width: int = 1920, height: int = 1200):
         objs = on_table(rng, wp.key, wp.mesh, x, y)
     target = objs[0].T_table_obj[:3, 3] * [1, 1, 0]
     table, layout = parts.tslot_table(), parts.tslot_table_layout()
+    # scenes from SHOP_FROM on add what a shop shows besides (own generator, so scenes 0.. keep theirs)
+    shop = shop_conditions(k, objs) if k >= SHOP_FROM else None
+    if shop is not None:
+        objs = shop["objects"]
     for _ in range(30):
         K, dist = random_intrinsics(rng, width, height)
         d, el, az = rng.uniform(450, 1300), np.radians(rng.uniform(20, 85)), rng.uniform(0, 2 * np.pi)
+        if shop is not None and shop["low_view"]:
+            el = np.radians(shop["rng"].uniform(20, 35))
         pos = target + d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         T_cam_table = look_at_pose(pos, target + rng.uniform(-60, 60, 3) * [1, 1, 0], rng.uniform(-10, 10))
         light = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.3), rng.uniform(0.5, 1.0)])
+        if shop is not None:
+            light[2] = shop["rng"].uniform(0.3, 0.5)          # a low lamp: long hard shadows
         scene = Scene(width=width, height=height, K=K, dist=dist, T_cam_table=T_cam_table, table_mesh=table,
                       table_layout=layout, objects=objs, light_dir_table=light / np.linalg.norm(light),
                       noise_sigma=float(rng.uniform(1.0, 3.0)), blur_sigma_px=float(rng.uniform(0.4, 1.0)),
                       jpeg_quality=int(rng.integers(80, 96)) if rng.random() < 0.5 else None,
-                      ambient=float(rng.uniform(0.2, 0.45)))
+                      ambient=float(rng.uniform(0.2, 0.45)),
+                      **({} if shop is None else {"vignetting": shop["vignetting"],
+                                                  "table_albedo": shop["table_albedo"]}))
         r = render_scene(scene, rng)
         if np.count_nonzero(r.labels == 2) > 2000:
             break

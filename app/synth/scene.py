@@ -38,7 +38,7 @@ Specular highlights and reflections of the machined metal, interreflections (no 
 from the table onto the part's shadowed faces beyond the constant ambient), soft light sources
 (shadow penumbra is only the shadow map's filtering), smooth shading of curved surfaces (faceted
 cylinders show their facets), chamfers and rounded edges unless they are in the mesh, depth of
-field, rolling shutter, motion blur, vignetting, chromatic aberration, colour (grey only), sensor
+field, rolling shutter, motion blur, chromatic aberration, colour (grey only), sensor
 non-uniformity (PRNU/DSNU), signal-dependent (shot) noise, chips/coolant/dirt, markers off the table
 top plane (layouts with tilted or raised markers are refused), printing errors of the markers,
 light falling through T-slots (the table is one closed body lit by one directional light).
@@ -110,6 +110,7 @@ class Scene:
     texture_seed: int = 0
     marker_margin_cells: float = 1.0
     exposure: float = 1.0
+    vignetting: float = 0.0          # radiance falls by this share from the centre to the corners (r^2)
 
 
 @dataclass
@@ -387,6 +388,12 @@ def render_scene(scene: Scene, rng: np.random.Generator) -> Rendered:
     radiance = radiance.astype(np.float32)
 
     img = radiance
+    if scene.vignetting > 0:            # lens falloff: darker towards the corners, before the noise
+        Hr, Wr = img.shape
+        vv, uu = np.mgrid[0:Hr, 0:Wr].astype(np.float32)
+        r2 = ((uu - K[0, 2]) ** 2 + (vv - K[1, 2]) ** 2) / float(max(K[0, 2], Wr - K[0, 2]) ** 2 +
+                                                               max(K[1, 2], Hr - K[1, 2]) ** 2)
+        img = img * (1.0 - float(scene.vignetting) * r2)
     if scene.blur_sigma_px > 0:
         img = cv2.GaussianBlur(img, (0, 0), scene.blur_sigma_px, borderType=cv2.BORDER_REPLICATE)
     img = 255.0 * np.clip(img, 0, 1) ** (1.0 / scene.gamma)

@@ -9,7 +9,8 @@ import trimesh
 
 from app.geometry import parts
 from app.geometry.transforms import transform_points
-from app.synth.fixtures import in_vise, on_parallels, synth_entry
+from app.synth.fixtures import SHOP_FROM, in_vise, on_parallels, shop_conditions, synth_entry
+from app.synth.scene import SceneObject, place_on_table
 
 
 @pytest.fixture(scope="module")
@@ -67,3 +68,18 @@ def test_the_generated_set_cycles_modes_and_parts():
     modes = [synth_entry(k)["fixture_mode"] for k in range(6)]
     assert modes == ["table", "vise", "parallels"] * 2
     assert len({synth_entry(k)["workpiece"] for k in range(12)}) == 4
+
+
+def test_shop_scenes_add_a_spindle_dark_parts_and_vignetting_and_leave_the_older_ones():
+    box = trimesh.creation.box(bounds=[[0, 0, 0], [60, 40, 30]])
+    objs = [SceneObject("part", box, place_on_table(box, 300.0, 200.0, 0.0), albedo=0.6)]
+    even, odd = shop_conditions(SHOP_FROM, objs), shop_conditions(SHOP_FROM + 1, objs)
+    for sc in (even, odd):
+        names = [o.name for o in sc["objects"]]
+        assert names == ["part", "spindle"] and 0.3 <= sc["vignetting"] <= 0.6
+        spindle = sc["objects"][1]
+        low = float(transform_points(spindle.T_table_obj, spindle.mesh.vertices)[:, 2].min())
+        assert low >= 30.0 + 60.0 - 1e-6              # the tool's tip stays above the part's top
+    assert even["objects"][0].albedo < 0.3 and even["table_albedo"] < 0.3     # dark part, dark table
+    assert odd["objects"][0].albedo == 0.6 and odd["table_albedo"] == 0.42
+    assert objs[0].albedo == 0.6                      # the caller's objects are not changed

@@ -233,3 +233,20 @@ def test_tessellated_flat_face_has_no_speckles():
     assert inner.sum() > 1000
     top = r.radiance[inner]
     assert np.abs(top - np.median(top)).max() < 1e-3
+
+
+def test_vignetting_darkens_the_corners_not_the_centre():
+    """A top view of the table: with 50 % vignetting the corner's grey falls to about 0.5 ** (1 /
+    gamma) of its value, the centre keeps its grey."""
+    base = random_scene(np.random.default_rng(1), width=320, height=200, objects=[])
+    T = look_at_pose(np.array([400.0, 200.0, 900.0]), np.array([400.0, 200.0, 0.0]))
+    K = np.array([[250.0, 0, 160], [0, 250, 100], [0, 0, 1]])
+    kw = dict(width=320, height=200, K=K, dist=np.zeros(5), T_cam_table=T, table_mesh=base.table_mesh,
+              table_layout=base.table_layout, objects=[], jpeg_quality=None, noise_sigma=0.0, shadows=False)
+    plain = render_scene(Scene(**kw), np.random.default_rng(0)).image.astype(float)
+    vign = render_scene(Scene(**kw, vignetting=0.5), np.random.default_rng(0)).image.astype(float)
+    centre = (slice(95, 105), slice(155, 165))
+    corner = (slice(0, 6), slice(0, 6))
+    assert vign[centre].mean() == pytest.approx(plain[centre].mean(), rel=0.02)
+    ratio = vign[corner].mean() / plain[corner].mean()
+    assert ratio == pytest.approx(0.5 ** (1 / 2.2), rel=0.08)

@@ -1,0 +1,109 @@
+"""Benchmark: recognition time against the size of the library (issue 12, item 6).
+
+    .venv/bin/python benchmarks/recognition_scaling.py [--sizes 5,20,50,200] [--scenes setup_010,setup_030]
+
+On table scenes of the independent devset (1920 x 1200), :func:`app.vision.localize.localize` with
+``recognise=True`` chooses the scene's workpiece among N library models: the workpiece itself and
+N - 1 others, first the devset's and the example library's parts, then the external CAD parts, then
+scaled copies of all of them (0.8 to 1.25: look-alikes, as a shop's library holds a part in several
+sizes). Models are prepared before the clock starts (the service keeps them per revision); their
+preparation time is reported apart. Reported per N: time per image (median over the scenes), the
+time per model, whether the workpiece was accepted, and the ratio to the smallest N (linear growth would be N / N_smallest).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+DEVSET = Path(os.environ.get("SETUPCAM_DEVSET", Path(__file__).resolve().parents[2] / "shared" / "data" / "devset"))
+EXTERNAL = DEVSET.parent / "external" / "trimesh_models"
+
+
+def distractors(exclude: str) -> list[tuple[str, object]]:
+    """(name, mesh) of library models other than ``exclude``, in the order they join the library."""
+    import trimesh
+
+    from app.geometry import parts
+
+    base = [("pin_block_32", parts.pin_block_32()), ("flange_plate_80", parts.flange_plate_80()),
+            ("bracket_140", parts.bracket_140()), ("base_plate_300", parts.base_plate_300()),
+            ("strap_clamp_125", parts.strap_clamp(125.0)), ("parallel_150x25x8", parts.parallel(150.0, 25.0, 8.0))]
+    man = json.loads((DEVSET / "manifest.json").read_text())
+    for name, wp in sorted(man.get("workpieces", {}).items()):
+        path = DEVSET / wp["mesh"] if isinstance(wp, dict) and "mesh" in wp else None
+        if name != exclude and path is not None and path.exists():
+            base.append((name, trimesh.load(path, force="mesh")))
+    for p in sorted(EXTERNAL.glob("*.[sS][tT][lL]")):
+        if p.stem != exclude and not any(n == p.stem for n, _ in base):
+            base.append((p.stem, trimesh.load(p, force="mesh")))
+    out = list(base)
+    for s in (0.8, 1.25, 0.9, 1.1, 0.7, 1.4, 0.85, 1.15, 0.75, 1.2, 0.95, 1.05, 0.65, 1.3, 0.6, 1.35,
+              0.55, 1.45, 0.5, 1.5):
+        for name, m in base:
+            c = m.copy()
+            c.apply_scale(s)
+            out.append((f"{name}_x{s:g}", c))
+    return [(n, m) for n, m in out if n != exclude]
+
+
+def main() -> int:
+    import cv2
+    import trimesh
+
+    from app.synth.devset import devset_scene
+    from app.vision.localize import Candidate, localize
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", default="5,20,50,200")
+    ap.add_argument("--scenes", default="setup_010,setup_030")
+    ap.add_argument("--out", default="var/recognition_scaling.json")
+    a = ap.parse_args()
+    sizes = [int(v) for v in a.sizes.split(",")]
+    man = json.loads((DEVSET / "manifest.json").read_text())
+    entries = [e for e in man["families"]["setup"] if e["scene_id"] in a.scenes.split(",")]
+    rows = []
+    for entry in entries:
+        sc = devset_scene(DEVSET, entry)
+        image = cv2.imread(str(DEVSET / entry["image"]), cv2.IMREAD_UNCHANGED)
+        wp = sc.workpiece
+        target = Candidate(wp["name"], trimesh.load(DEVSET / wp["mesh"], force="mesh"), kind="workpiece")
+        others = [Candidate(n, m, kind="workpiece") for n, m in distractors(entry["workpiece"])]
+        t = time.perf_counter()
+        pool = [target] + others[: max(sizes) - 1]
+        for c in pool + [sc.table_candidate]:
+            c.prepare()
+        prep_s = time.perf_counter() - t
+        for n in sizes:
+            lib = pool[:n]
+            t = time.perf_counter()
+            res = localize(image, sc.K, sc.dist, sc.layout, lib, recognise=True, table_model=sc.table_candidate)
+            dt = time.perf_counter() - t
+            names = [o["name"] for o in res.objects]
+            row = {"scene": entry["scene_id"], "n": n, "s": dt, "accepted": names, "right": wp["name"] in names,
+                   "wrong": [x for x in names if x != wp["name"]], "prep_s_all": prep_s}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps(rows, indent=1))
+    print("\n| models | time per image median (s) | per model (s) | ratio to the smallest | workpiece accepted | others accepted |")
+    print("|---|---|---|---|---|---|")
+    base = None
+    for n in sizes:
+        r = [x for x in rows if x["n"] == n]
+        med = float(np.median([x["s"] for x in r]))
+        base = base or med
+        print(f"| {n} | {med:.1f} | {med / n:.2f} | {med / base:.1f} (linear: {n / sizes[0]:.1f}) | "
+              f"{sum(x['right'] for x in r)} / {len(r)} | {sum(len(x['wrong']) for x in r)} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
