@@ -102,6 +102,7 @@ class ProbingProgram:
     travel: tuple[PlannedPath, ...]  # travel[i] links the approach point before touch i
     gcode: str
     dry_run: bool
+    obstacles: tuple = ()  # probing_safety.KnownObstacle: what the program was planned around
 
 
 def _face_clusters(mesh_datum: trimesh.Trimesh, axis: np.ndarray, upward_only: bool):

@@ -1,0 +1,85 @@
+"""What the probing page shows (issue 18, items 4 and 6): the choices a setup's probing program can be
+made with, and the planned program as data (frame, obstacles with their source, touches, travel).
+
+The plan goes through every gate of the program itself (app.services.planning.probing_plan, the frame
+read back from a live controller included), so the page offers exactly what the program endpoint
+would give, and shows the same refusal (409/422 with a reason code) otherwise. Frames: points in the
+table frame (mm) unless a key says ``_prog`` (the program frame: the slot the program runs in).
+"""
+
+from __future__ import annotations
+
+from urllib.parse import urlencode
+
+import numpy as np
+from sqlmodel import Session, select
+
+from app.services.planning import (
+    CLEARANCE_RANGE_MM,
+    PROBE_DIALECTS,
+    _table_xy,
+    check_program_params,
+    controller_slots,
+    probing_plan,
+    program_frame,
+)
+from app.services.setups import get_setup
+from app.store.files import FileStore
+
+
+def _round(v, nd: int = 4) -> list:
+    return np.round(np.asarray(v, dtype=float), nd).tolist()
+
+
+def probing_options(session: Session, setup_id: int) -> dict:
+    """The closed sets the program's parameters come from for this setup's machine (dialects, slots,
+    clearance range), and the slot a verified export of the current revision was written to (the
+    frame the program should run in), if any."""
+    from app.services.machines import get_machine
+    from app.store.models import Export
+
+    s = get_setup(session, setup_id)
+    machine = get_machine(session, s.machine_id)
+    kind = (machine.controller or {}).get("kind")
+    dialects = [d for d in PROBE_DIALECTS
+                if kind != "file" or (machine.controller or {}).get("dialect") == d]
+    exported = session.exec(select(Export).where(Export.setup_id == s.id, Export.result_revision == s.result_revision,
+                                                 Export.status == "written").order_by(Export.id.desc())).first()
+    return {"setup_id": s.id, "machine_id": machine.id, "machine": machine.name, "controller": kind,
+            "dialects": dialects, "slots": list(controller_slots(machine.controller, PROBE_DIALECTS[0])),
+            "exported_slot": exported.slot if exported else None,
+            "reads_back": kind in ("linuxcnc", "opcua"),
+            "clearance_mm": {"min": CLEARANCE_RANGE_MM[0], "max": CLEARANCE_RANGE_MM[1], "default": 5.0}}
+
+
+def plan_summary(session: Session, files: FileStore, settings, setup_id: int, *, wcs: str, dialect: str,
+                 clearance_mm: float, no_go: str | None) -> dict:
+    """The program the probing page offers, as data: refusals are raised as by the program endpoint."""
+    from app.geometry.transforms import transform_points
+    from app.services.machines import get_machine
+
+    prog = probing_plan(session, files, settings, setup_id, dry_run=False, wcs=wcs, dialect=dialect,
+                        clearance_mm=clearance_mm, no_go=no_go)
+    s = get_setup(session, setup_id)
+    machine = get_machine(session, s.machine_id)
+    d, slot, clearance = check_program_params(machine, dialect=dialect, wcs=wcs, clearance_mm=clearance_mm)
+    T_prog_table = program_frame(machine, s.result["offset"])
+    lines = prog.gcode.splitlines()
+    frame = lines[1][len("(frame: "):-1] if len(lines) > 1 and lines[1].startswith("(frame: ") else ""
+    params = {"dialect": d, "wcs": slot, "clearance_mm": f"{clearance:g}", **({"no_go": no_go} if no_go else {})}
+    return {
+        "setup_id": s.id, "result_revision": s.result_revision, "dialect": d, "slot": slot, "clearance_mm": clearance,
+        "frame": frame,
+        "header": [ln for ln in lines[1:] if ln.startswith("(")][:40],
+        "obstacles": [{"name": o.name, "source": o.source, "top_mm": round(float(o.top_mm), 3),
+                       "footprint_xy_mm": _round(o.footprint_xy_mm, 2), "note": o.note} for o in prog.obstacles],
+        "touches": [{"name": t.name, "normal": _round(t.normal, 5), "contact_mm": _round(t.contact),
+                     "approach_tip_mm": _round(t.approach_tip), "probe_end_tip_mm": _round(t.probe_end_tip),
+                     "contact_tip_prog_mm": _round(transform_points(T_prog_table, [t.contact_tip])[0]),
+                     "face_normal_datum": _round(t.face_normal_datum, 6), "face_offset_mm": round(t.face_offset_mm, 4)}
+                    for t in prog.touches],
+        "travel_mm": [_round(p.waypoints, 2) for p in prog.travel],
+        "table_xy_mm": list(_table_xy(session, files, machine)),
+        "program_lines": len(lines),
+        "program_url": f"/api/v1/setups/{s.id}/probing-program?{urlencode(params)}",
+    }
