@@ -103,6 +103,7 @@ class ProbingProgram:
     gcode: str
     dry_run: bool
     obstacles: tuple = ()  # probing_safety.KnownObstacle: what the program was planned around
+    frame: str = ""  # the frame sentence whole (the header's comment may be cut to fit a line)
 
 
 def _face_clusters(mesh_datum: trimesh.Trimesh, axis: np.ndarray, upward_only: bool):

@@ -458,7 +458,7 @@ def plan_probing_program(
         k, q = bad[0]
         raise ProbingRefused("outside_travel", f"{len(bad)} moves end outside the machine's travel, first at machine "
                              f"X{q[0]:.3f} Y{q[1]:.3f} Z{q[2]:.3f}")
-    return replace(program, obstacles=(*located, *assumed))
+    return replace(program, obstacles=(*located, *assumed), frame=frame_text)
 
 
 __all__ = [

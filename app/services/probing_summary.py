@@ -31,10 +31,31 @@ def _round(v, nd: int = 4) -> list:
     return np.round(np.asarray(v, dtype=float), nd).tolist()
 
 
-def probing_options(session: Session, setup_id: int) -> dict:
+def _scene_outline(session: Session, files: FileStore, s, machine) -> dict:
+    """The table's xy bounds, the located objects from above (hull, top) and the names asked for but
+    not located: enough to draw no-go zones on when no program is on offer."""
+    from shapely.geometry import MultiPoint
+
+    from app.geometry.transforms import transform_points
+    from app.services.planning import setup_scene
+
+    located = []
+    if s.status == "located" and s.result:
+        meshes, poses, names, _, _ = setup_scene(session, files, s.id)
+        for m, T, n in zip(meshes, poses, names):
+            V = transform_points(T, m.vertices)
+            hull = MultiPoint([tuple(v) for v in V[:, :2]]).convex_hull
+            coords = np.asarray(hull.exterior.coords)[:-1] if hull.geom_type == "Polygon" else np.zeros((0, 2))
+            located.append({"name": n, "footprint_xy_mm": _round(coords, 2), "top_mm": round(float(V[:, 2].max()), 3)})
+    return {"table_xy_mm": list(_table_xy(session, files, machine)), "located": located,
+            "not_located": [nf["name"] for nf in (s.result or {}).get("not_found") or [] if nf.get("name")]}
+
+
+def probing_options(session: Session, files: FileStore, setup_id: int) -> dict:
     """The closed sets the program's parameters come from for this setup's machine (dialects, slots,
-    clearance range), and the slot a verified export of the current revision was written to (the
-    frame the program should run in), if any."""
+    clearance range), the slot a verified export of the current revision was written to (the frame
+    the program should run in), if any, and the scene's outline (table, located objects from above,
+    the names not located)."""
     from app.services.machines import get_machine
     from app.store.models import Export
 
@@ -46,6 +67,7 @@ def probing_options(session: Session, setup_id: int) -> dict:
     exported = session.exec(select(Export).where(Export.setup_id == s.id, Export.result_revision == s.result_revision,
                                                  Export.status == "written").order_by(Export.id.desc())).first()
     return {"setup_id": s.id, "machine_id": machine.id, "machine": machine.name, "controller": kind,
+            **_scene_outline(session, files, s, machine),
             "dialects": dialects, "slots": list(controller_slots(machine.controller, PROBE_DIALECTS[0])),
             "exported_slot": exported.slot if exported else None,
             "reads_back": kind in ("linuxcnc", "opcua"),
@@ -65,11 +87,10 @@ def plan_summary(session: Session, files: FileStore, settings, setup_id: int, *,
     d, slot, clearance = check_program_params(machine, dialect=dialect, wcs=wcs, clearance_mm=clearance_mm)
     T_prog_table = program_frame(machine, s.result["offset"])
     lines = prog.gcode.splitlines()
-    frame = lines[1][len("(frame: "):-1] if len(lines) > 1 and lines[1].startswith("(frame: ") else ""
     params = {"dialect": d, "wcs": slot, "clearance_mm": f"{clearance:g}", **({"no_go": no_go} if no_go else {})}
     return {
         "setup_id": s.id, "result_revision": s.result_revision, "dialect": d, "slot": slot, "clearance_mm": clearance,
-        "frame": frame,
+        "frame": prog.frame,
         "header": [ln for ln in lines[1:] if ln.startswith("(")][:40],
         "obstacles": [{"name": o.name, "source": o.source, "top_mm": round(float(o.top_mm), 3),
                        "footprint_xy_mm": _round(o.footprint_xy_mm, 2), "note": o.note} for o in prog.obstacles],

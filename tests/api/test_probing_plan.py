@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.planning.probing import gcode_positions
+from app.planning.probing_safety import comment
 from app.synth.scene import place_on_table
 from tests.api.test_probing_gates import _confirmed
 from tests.support.factories import make_machine
@@ -34,7 +35,7 @@ def test_the_plan_is_the_program_as_data(server):
     with server.client("operator") as c:
         prog = c.get(plan["program_url"])
     assert prog.status_code == 200 and prog.headers["content-disposition"].endswith('-probe.ngc"')
-    assert prog.text.splitlines()[1] == f"(frame: {plan['frame']})"
+    assert prog.text.splitlines()[1] == comment(f"frame: {plan['frame']}")  # the header's line, cut to fit
     g38 = [p for w, p in gcode_positions(prog.text) if w == "G38.2"]
     assert len(g38) == 4
     for t, end in zip(plan["touches"], g38):  # G38.2 ends overtravel beyond the contact, along the normal

@@ -49,10 +49,10 @@ def _closed_parameters(request: Request, allowed: tuple[str, ...]) -> None:
 @router.get("/setups/{setup_id}/probing-options", summary="What a probing program of this setup can be made with",
             description="Dialects, the controller's work-offset slots, the clearance range, and the slot a verified "
                         "export of the current revision was written to (the frame the program should run in).")
-def probing_options(session: SessionDep, setup_id: int) -> dict:
+def probing_options(session: SessionDep, files: FilesDep, setup_id: int) -> dict:
     from app.services import probing_summary
 
-    return probing_summary.probing_options(session, setup_id)
+    return probing_summary.probing_options(session, files, setup_id)
 
 
 @router.get("/setups/{setup_id}/probing-plan", summary="The probing program as data, for the probing page",
