@@ -236,3 +236,41 @@ def test_a_clamp_not_located_is_refused_until_the_operator_draws_where_it_is(pag
     assert "(obstacles assumed: located 1, assumed 1, drawn 1)" in text.splitlines()
     page.screenshot(path=str(ARTIFACTS / "probing-drawn-zone.png"), full_page=True)
     assert page.js_errors == []
+
+
+@pytest.mark.slow
+def test_with_linuxcnc_the_page_offers_only_the_frame_the_controller_holds(page, service):  # noqa: F811
+    """Item 4 on a live controller (the LinuxCNC sim): before a verified export the page refuses; after
+    the export to G55 it defaults to G55, says the offset was read back and offers the program; when
+    someone changes G55 on the machine, the next plan is refused again (frame_mismatch)."""
+    from app.synth.scene import place_on_table
+    from tests.api.test_probing_gates import _confirmed
+    from tests.machine.linuxcnc_sim import shared_sim, skip_reason
+    from tests.support.factories import make_machine
+    from tests.support.scenes import library_mesh
+
+    if skip_reason():
+        pytest.skip(skip_reason())
+    sim = shared_sim()
+    with service.client() as c:
+        m = make_machine(c, sim.settings)
+    sid = _confirmed(service, m["id"], place_on_table(library_mesh("bracket_140"), 300.0, 150.0, 10.0))
+    page.goto(f"{service.url}/probing?setup={sid}")
+    page.get_by_test_id("refusal").wait_for(state="visible", timeout=60_000)
+    assert page.get_by_test_id("refusal-code").inner_text() == "frame_not_exported"
+    assert not page.get_by_test_id("download-button").is_enabled()
+    with service.client("operator") as c:
+        e = c.post(f"/api/v1/setups/{sid}/export", json={"slot": "G55", "acknowledge_change": True})
+        assert e.status_code == 200 and e.json()["status"] == "written", e.text
+    page.reload()
+    page.wait_for_function("() => !document.querySelector('[data-testid=download-button]').disabled", timeout=60_000)
+    assert page.get_by_test_id("slot-select").input_value() == "G55"   # the slot the export wrote
+    frame = page.get_by_test_id("frame-text").inner_text()
+    assert frame.startswith("G55 = datum of") and f"verified export {e.json()['id']}, read back now" in frame, frame
+    page.screenshot(path=str(ARTIFACTS / "probing-frame-read-back.png"), full_page=True)
+    sim.mdi("G10 L2 P2 X0 Y0 Z0 R0")   # someone changes G55 on the machine
+    page.get_by_test_id("plan-button").click()
+    page.get_by_test_id("refusal").wait_for(state="visible", timeout=60_000)
+    assert page.get_by_test_id("refusal-code").inner_text() == "frame_mismatch"
+    assert not page.get_by_test_id("download-button").is_enabled()
+    assert page.js_errors == []
