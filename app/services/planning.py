@@ -275,8 +275,6 @@ def _touches(session: Session, files: FileStore, setup_id: int):
 
 #: what a touch may differ from the truth besides the located error (probe repeatability, rounding), mm
 PROBE_TOLERANCE_MM = 0.05
-#: largest distance of a measured contact from its refined face before the part is taken not to fit, mm
-PROBE_MAX_RESIDUAL_MM = 0.05
 
 
 def apply_probe_results(session: Session, files: FileStore, settings, setup_id: int, text: str,
@@ -313,7 +311,7 @@ def apply_probe_results(session: Session, files: FileStore, settings, setup_id: 
         # the log holds tips in the program frame: the datum slot the program ran in
         T_prog_table = program_frame(machine, off)
         ref = refine_offset(touches, tips, T_table_datum, ball_radius_mm=params.ball_radius_mm,
-                            T_prog_table=T_prog_table, max_residual_mm=PROBE_MAX_RESIDUAL_MM)
+                            T_prog_table=T_prog_table)
     except ValueError as exc:
         raise Invalid(f"probe results: {exc}") from None
     failed = bool(ref.reason) and bool(ref.residuals_mm)  # a fit exists, but the part does not fit it
@@ -336,9 +334,7 @@ def apply_probe_results(session: Session, files: FileStore, settings, setup_id: 
             before = {"T_table_obj": o["T_table_obj"], "sigma": o.get("sigma")}
             o = {k: v for k, v in o.items() if k != "probe_fail"}
             o.update({"probed": True, "probe_before": before, "probe_residuals_mm": list(ref.residuals_mm),
-                      "probe_deviation_mm": deviation, "probe_expected_mm": expected,
-                      "probe_touch_names": [t.name for t in touches], "probe_max_residual_mm": PROBE_MAX_RESIDUAL_MM,
-                      "probe_measured_prog_mm": np.round(tips, 4).tolist()})
+                      "probe_deviation_mm": deviation, "probe_expected_mm": expected})
             if beyond and not failed:
                 o["probe_fail"] = (f"a touch found the part {off_by:.3f} mm from the confirmed pose, beyond its "
                                    f"expected error {expected:.3f} mm (3 sigma + {PROBE_TOLERANCE_MM} mm): the "

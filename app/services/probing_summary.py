@@ -41,7 +41,9 @@ def _scene_outline(session: Session, files: FileStore, s, machine) -> dict:
 
     located = []
     if s.status == "located" and s.result:
-        meshes, poses, names, _, _ = setup_scene(session, files, s.id)
+        sc = setup_scene(session, files, s.id)
+        # a Scene once issue 15's typed result is merged, a (meshes, poses, names, sigma, workpiece) tuple before
+        meshes, poses, names = (sc.meshes, sc.poses, sc.names) if hasattr(sc, "meshes") else sc[:3]
         for m, T, n in zip(meshes, poses, names):
             V = transform_points(T, m.vertices)
             hull = MultiPoint([tuple(v) for v in V[:, :2]]).convex_hull
@@ -62,8 +64,8 @@ def probing_options(session: Session, files: FileStore, setup_id: int) -> dict:
     s = get_setup(session, setup_id)
     machine = get_machine(session, s.machine_id)
     kind = (machine.controller or {}).get("kind")
-    dialects = [d for d in PROBE_DIALECTS
-                if kind != "file" or (machine.controller or {}).get("dialect") == d]
+    # all of them, also for a file controller of another dialect: the plan then says why not (dialect_mismatch)
+    dialects = list(PROBE_DIALECTS)
     exported = session.exec(select(Export).where(Export.setup_id == s.id, Export.result_revision == s.result_revision,
                                                  Export.status == "written").order_by(Export.id.desc())).first()
     return {"setup_id": s.id, "machine_id": machine.id, "machine": machine.name, "controller": kind,

@@ -5,7 +5,7 @@
 
 const $ = (id) => document.getElementById(id);
 const SVG = "http://www.w3.org/2000/svg";
-const state = { setup: null, options: null, plan: null, lastPlan: null, corner: null };
+const state = { setup: null, options: null, plan: null, lastPlan: null, corner: null, sent: null };
 
 function svgEl(tag, attrs = {}, text = null) {
   const e = document.createElementNS(SVG, tag);
@@ -256,18 +256,31 @@ function tapPlan(ev) {
 // ------------------------------------------------------------------------------------------- results
 function cOf(T) { return Math.atan2(T[1][0], T[0][0]) * 180 / Math.PI; }
 
-/** Per touch name: true (within the allowed error), false (beyond), from the last probe results. */
+/** The touch names of the last probe results, in the program's order (the plan's touches). */
+function touchNames(wp) {
+  const plan = state.lastPlan;
+  return (wp.probe_deviation_mm || []).map((_, i) => (plan && plan.touches[i] ? plan.touches[i].name : `#${i + 1}`));
+}
+
+/** Per touch name: true when the probe found its face within the allowed error of the camera's pose
+ *  (probe_expected_mm: 3 sigma + the probe's tolerance), false beyond, from the last probe results. */
 function touchVerdicts(s) {
   const wp = s && workpiece(s);
   const out = {};
   if (!wp || !wp.probed) return out;
-  const names = wp.probe_touch_names || [];
-  (wp.probe_deviation_mm || []).forEach((d, i) => {
-    const res = (wp.probe_residuals_mm || [])[i];
-    out[names[i] || `#${i + 1}`] = Math.abs(d) <= wp.probe_expected_mm
-      && (res === undefined || Math.abs(res) <= (wp.probe_max_residual_mm ?? Infinity));
-  });
+  const names = touchNames(wp);
+  (wp.probe_deviation_mm || []).forEach((d, i) => { out[names[i]] = Math.abs(d) <= wp.probe_expected_mm; });
   return out;
+}
+
+/** The probed points (program frame) as sent from this page: the first three numbers of each row. */
+function sentPoints() {
+  const t = (state.sent || "").trim();
+  if (!t) return [];
+  try {
+    if (t.startsWith("[")) return JSON.parse(t);
+  } catch (e) { return []; }
+  return t.split(/\r?\n/).filter((l) => l.trim()).map((l) => l.trim().split(/\s+/).slice(0, 3).map(Number));
 }
 
 function showResults(s) {
@@ -279,11 +292,11 @@ function showResults(s) {
     return;
   }
   view.classList.remove("hidden");
-  const names = wp.probe_touch_names || [];
-  const dev = wp.probe_deviation_mm || [], res = wp.probe_residuals_mm || [], meas = wp.probe_measured_prog_mm || [];
+  const names = touchNames(wp);
+  const dev = wp.probe_deviation_mm || [], res = wp.probe_residuals_mm || [], meas = sentPoints();
   const ok = touchVerdicts(s);
   $("residuals").tBodies[0].replaceChildren(...dev.map((d, i) => {
-    const n = names[i] || `#${i + 1}`, m = meas[i] || [];
+    const n = names[i], m = meas[i] || [];
     return el("tr", { "data-testid": "residual-row", class: ok[n] ? "" : "fail-row" },
       el("th", { text: n }), el("td", { class: "num", text: fmt(m[0], 3) }), el("td", { class: "num", text: fmt(m[1], 3) }),
       el("td", { class: "num", text: fmt(m[2], 3) }), el("td", { class: "num", text: fmt(d, 3) }),
@@ -315,7 +328,7 @@ function drawChart(names, dev, limit, ok) {
   const y = (v) => H - 24 - (H - 40) * Math.min(v, top) / top;
   const bw = (W - 40) / Math.max(dev.length, 1);
   dev.forEach((d, i) => {
-    const n = names[i] || `#${i + 1}`;
+    const n = names[i];
     const x = 30 + i * bw + bw * 0.2;
     svg.append(svgEl("rect", { x, y: y(Math.abs(d)), width: bw * 0.6, height: H - 24 - y(Math.abs(d)),
                                class: ok[n] ? "bar" : "bar fail" }));
@@ -335,6 +348,7 @@ async function sendResults() {
   $("results-button").disabled = true;
   status("Fitting the pose to the probed points…", "info");
   try {
+    state.sent = text;
     state.setup = await api(`/api/v1/setups/${s.id}/probe-results`,
       { method: "POST", headers: { "Content-Type": "text/plain" }, body: text });
     showResults(state.setup);
