@@ -102,6 +102,8 @@ class ProbingProgram:
     travel: tuple[PlannedPath, ...]  # travel[i] links the approach point before touch i
     gcode: str
     dry_run: bool
+    obstacles: tuple = ()  # probing_safety.KnownObstacle: what the program was planned around
+    frame: str = ""  # the frame sentence whole (the header's comment may be cut to fit a line)
 
 
 def _face_clusters(mesh_datum: trimesh.Trimesh, axis: np.ndarray, upward_only: bool):
@@ -137,6 +139,20 @@ def _face_region(mesh_datum, ids, plane_axes):
     return unary_union(polys)
 
 
+def _usable_line(region, z: float, trim_mm: float, where: str) -> LineString:
+    """The longest piece of the horizontal line at height ``z`` inside ``region`` (a face in its
+    (along, z) plane), ``trim_mm`` shorter at both ends; ValueError naming ``where`` when none is left."""
+    x0, _, x1, _ = region.bounds if not region.is_empty else (0.0, 0.0, 0.0, 0.0)
+    line = LineString([(x0 - 1, z), (x1 + 1, z)]).intersection(region)
+    pieces = [g for g in getattr(line, "geoms", [line]) if g.length > 2 * trim_mm]
+    if not pieces:
+        raise ValueError(f"no usable line {where}")
+    seg = max(pieces, key=lambda g: g.length)
+    (ax, az), (bx, _) = seg.coords[0], seg.coords[-1]
+    lo, hi = min(ax, bx) + trim_mm, max(ax, bx) - trim_mm
+    return LineString([(lo, az), (hi, az)]) if hi > lo else LineString([(lo, az), (lo + 1e-9, az)])
+
+
 def _first_hit_ok(mesh_datum, point, normal, tol_mm=0.05) -> bool:
     origin = np.asarray(point) + 50.0 * np.asarray(normal)
     loc, _, _ = mesh_datum.ray.intersects_location([origin], [-np.asarray(normal)])
@@ -151,11 +167,17 @@ class TouchPlacement:
     """Where on the datum faces the touches go: ``rot_fracs`` the two touches on the longer side face
     and ``single_frac`` the one on the other (fractions along the usable line), ``top_frac`` the top
     touch as fractions (u, v) of the usable top region's xy bounds (None: its pole of inaccessibility).
+    ``rot_depth_mm`` / ``single_depth_mm``: the contact's depth below the face's upper edge (datum z, mm;
+    None: ``params.depth_mm``, kept ``ball_radius_mm + edge_margin_mm`` from the edge); a given depth
+    only has to keep ``edge_margin_mm`` from the edge (the ball's centre is beside the face, not on
+    it), so a touch can move up a face held by vise jaws into the band above them.
     The default is the module doc's choice; a planner may try others to keep clear of clamps."""
 
     rot_fracs: tuple[float, float] = (0.15, 0.85)
     single_frac: float = 0.5
     top_frac: tuple[float, float] | None = None
+    rot_depth_mm: float | None = None
+    single_depth_mm: float | None = None
 
 
 def choose_touch_points(
@@ -173,21 +195,25 @@ def choose_touch_points(
     sides = []
     for a, name in ((0, "x"), (1, "y")):
         sign, off, ids = _pick_datum_face(md, E[a], False, name)
-        other = 1 - a
-        region = _face_region(md, ids, [other, 2]).buffer(-inset)
+        face = _face_region(md, ids, [1 - a, 2])
+        region = face.buffer(-inset)
         if region.is_empty:
             raise ValueError(f"datum face {name} is too small for a {r:.1f} mm ball with {params.edge_margin_mm} mm margin")
         top = region.bounds[3]
         z = max(top - max(params.depth_mm - inset, 0.0), region.bounds[1])
-        line = LineString([(region.bounds[0] - 1, z), (region.bounds[2] + 1, z)]).intersection(region)
-        pieces = [g for g in getattr(line, "geoms", [line]) if g.length > 0]
-        if not pieces:
-            raise ValueError(f"no usable line {params.depth_mm} mm below the edge of datum face {name}")
-        seg = max(pieces, key=lambda g: g.length)
-        sides.append((a, name, sign, off, seg, z))
+        seg = _usable_line(region, z, 0.0, f"{params.depth_mm} mm below the edge of datum face {name}")
+        sides.append((a, name, sign, off, seg, z, face))
     rot = max(sides, key=lambda s: s[4].length)
     touches_d: list[tuple[str, np.ndarray, float, np.ndarray]] = []  # (name, n_datum, offset, point_datum)
-    for a, name, sign, off, seg, z in sides:
+    for a, name, sign, off, seg, z, face in sides:
+        depth = placement.rot_depth_mm if a == rot[0] else placement.single_depth_mm
+        if depth is not None:  # an explicit depth: the contact keeps the edge margin from the upper edge
+            if not np.isfinite(depth) or depth < params.edge_margin_mm:
+                raise ValueError(f"a touch {depth} mm below the edge of datum face {name} is closer to it than the "
+                                 f"edge margin {params.edge_margin_mm} mm")
+            z = face.bounds[3] - float(depth)
+            seg = _usable_line(face.buffer(-params.edge_margin_mm), z, r, f"{depth:.2f} mm below the edge of datum "
+                               f"face {name}")
         fracs = tuple(placement.rot_fracs) if (a == rot[0]) else (placement.single_frac,)
         for k, f in enumerate(fracs):
             u = seg.interpolate(f, normalized=True).x

@@ -12,7 +12,7 @@ xy) and a top height, with its *source*:
   (the footprint is the whole table top) and reach as high as the highest located top plus its own
   height as modelled (fixtures stand as modelled). Such an obstacle blocks every touch, so a
   program is refused with its name unless it is located or drawn;
-* ``drawn``   - a no-go zone an operator drew (not offered over REST yet).
+* ``drawn``   - a no-go zone an operator drew (the `no_go` parameter; the probing page draws it).
 """
 
 from __future__ import annotations
@@ -267,12 +267,21 @@ def _alternatives(group: str) -> list:
     return sorted(uv, key=lambda p: (np.hypot(p[0] - 0.5, p[1] - 0.5), p))
 
 
-def place_touches(choose, conflicts, max_tries: int = 200):
+def side_depths_mm(default_mm: float, min_mm: float, step_mm: float = 0.25) -> list[float]:
+    """Depths below a side face's upper edge to try when the default one is blocked, from just above
+    the default up to ``min_mm`` (nearest the default first)."""
+    out = [float(d) for d in np.arange(default_mm - step_mm, min_mm - 1e-9, -step_mm)]
+    return out + [float(min_mm)] if not out or out[-1] > min_mm + 1e-9 else out
+
+
+def place_touches(choose, conflicts, max_tries: int = 200, depths_mm: Sequence[float] = ()):
     """Touches whose placement keeps clear of obstacles: the default, or, per group of touches
     (the two on the rotation face, the single side touch, the top touch) that conflicts, the first
-    alternative placement (nearest the default) whose touches of that group are clear. ``choose``:
-    placement -> touches (may raise ValueError); ``conflicts``: touches -> [(touch, obstacle)].
-    Returns (touches, remaining conflicts)."""
+    alternative placement (nearest the default) whose touches of that group are clear; a side group
+    still blocked (a face held by vise jaws) then moves up its face, to the first of ``depths_mm``
+    (below the face's upper edge) where it is clear. ``choose``: placement -> touches (may raise
+    ValueError); ``conflicts``: touches -> [(touch, obstacle)]. Returns (touches, remaining conflicts,
+    placement)."""
     from app.planning.probing import TouchPlacement
 
     placement = TouchPlacement()
@@ -281,8 +290,11 @@ def place_touches(choose, conflicts, max_tries: int = 200):
     for group, field_name in (("rot", "rot_fracs"), ("single", "single_frac"), ("top", "top_frac")):
         if not any(_group(t) == group for t, _ in found):
             continue
-        for alt in _alternatives(group)[:max_tries]:
-            trial = replace(placement, **{field_name: alt})
+        tries = [{field_name: alt} for alt in _alternatives(group)[:max_tries]]
+        if group != "top":
+            tries += [{f"{group}_depth_mm": d} for d in depths_mm]
+        for change in tries:
+            trial = replace(placement, **change)
             try:
                 cand = choose(trial)
             except ValueError:
@@ -291,7 +303,46 @@ def place_touches(choose, conflicts, max_tries: int = 200):
                 placement = trial
                 break
     touches = choose(placement)
-    return touches, conflicts(touches)
+    return touches, conflicts(touches), placement
+
+
+def room_above(touches, blocked, grids, names, workpiece_index: int, params, clearance_mm: float,
+               grow_mm: float, face_top_mm) -> list[str]:
+    """Why side touches blocked by a fixture beside them (a face held by vise jaws) cannot move up
+    their face: one sentence (or none) saying, per (touch, obstacle), how far the part stands above
+    that obstacle there, and how far it must (ball radius + clearance + edge margin + twice the
+    3-sigma growth). ``face_top_mm``: touch name -> table z of its face's upper edge."""
+    r_small = max(params.ball_radius_mm, params.stylus_radius_mm)
+    by_name = {t.name: t for t in touches}
+    need = params.ball_radius_mm + clearance_mm + params.edge_margin_mm + 2.0 * grow_mm
+    found = []
+    for tname, oname in blocked:
+        t = by_name.get(tname)
+        if t is None or _group(tname) == "top" or oname not in names or names.index(oname) == workpiece_index:
+            continue
+        grid = grids[names.index(oname)]
+        a, e = np.asarray(t.approach_tip, dtype=float), np.asarray(t.probe_end_tip, dtype=float)
+        steps = int(np.ceil(np.linalg.norm(e[:2] - a[:2]) / grid.cell_mm)) + 1
+        top = float(grid.profile_mm(0, a[:2], e[:2], r_small + clearance_mm, steps).max()) - grow_mm
+        found.append(f"{float(face_top_mm[tname]) - top:.1f} mm above {oname} at touch {tname}")
+    if not found:
+        return []
+    return [f"the part stands {', '.join(found)}; moving a touch up its face into the free band needs {need:.1f} mm "
+            f"(ball {params.ball_radius_mm:g} + clearance {clearance_mm:g} + edge margin {params.edge_margin_mm:g} "
+            f"+ 2 x 3 sigma {grow_mm:.2f} mm): probe with the part higher in the vise, a smaller clearance, or "
+            "set the offset by hand"]
+
+
+def _face_top(choose, touch_name: str, depth_mm: float) -> float:
+    """Table z of the upper edge of the side face a touch is on (its contact at ``depth_mm`` below it)."""
+    from app.planning.probing import TouchPlacement
+
+    group = _group(touch_name)
+    try:
+        ts = choose(TouchPlacement(**{f"{group}_depth_mm": depth_mm}))
+    except ValueError:
+        return float("nan")
+    return next(float(t.contact[2]) + depth_mm for t in ts if t.name == touch_name)
 
 
 def plan_probing_program(
@@ -367,16 +418,23 @@ def plan_probing_program(
                              "anywhere on the table, where the touches go. Locate it (another image), draw where "
                              "it is (no_go) or remove it from the setup's models")
     grids = object_grids(meshes, poses, grow)
-    touches, blocked = place_touches(
+    # a side touch may move up its face as far as the edge margin plus the part's 3-sigma growth
+    min_depth = params.edge_margin_mm + grow
+    default_depth = max(params.depth_mm, params.ball_radius_mm + params.edge_margin_mm)
+    touches, blocked, _ = place_touches(
         choose, lambda ts: (touch_conflicts(ts, assumed, wp, params, clearance_mm)
-                            + touch_conflicts_grids(ts, grids, names, workpiece_index, params, clearance_mm)))
+                            + touch_conflicts_grids(ts, grids, names, workpiece_index, params, clearance_mm)),
+        depths_mm=side_depths_mm(default_depth, min_depth) if default_depth > min_depth else ())
     unknown = sorted({o for _, o in blocked if o in {a.name for a in assumed}})
     if unknown:
         raise ProbingRefused("obstacle_not_located", f"every touch placement comes within {clearance_mm} mm of "
                              f"{', '.join(unknown)} (not located or drawn); locate the objects or draw tighter zones")
     if blocked:
         pairs = ", ".join(f"touch {t} by {o}" for t, o in blocked)
-        raise ProbingRefused("touch_blocked", f"a touch cannot be reached with {clearance_mm} mm clearance: {pairs}")
+        why = room_above(touches, blocked, grids, names, workpiece_index, params, clearance_mm, grow,
+                         {t.name: _face_top(choose, t.name, min_depth) for t in touches if _group(t.name) != "top"})
+        raise ProbingRefused("touch_blocked", f"a touch cannot be reached with {clearance_mm} mm clearance: {pairs}"
+                             + (f" ({'; '.join(why)})" if why else ""))
     tallest = max(o.top_mm for o in [*located, *assumed])
     try:
         retract = retract_height_mm(tallest, clearance_mm, table_z_max_mm(T_machine_table, travel_mm))
@@ -400,7 +458,7 @@ def plan_probing_program(
         k, q = bad[0]
         raise ProbingRefused("outside_travel", f"{len(bad)} moves end outside the machine's travel, first at machine "
                              f"X{q[0]:.3f} Y{q[1]:.3f} Z{q[2]:.3f}")
-    return program
+    return replace(program, obstacles=(*located, *assumed), frame=frame_text)
 
 
 __all__ = [

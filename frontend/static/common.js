@@ -15,11 +15,12 @@ async function api(path, opts = {}) {
     throw new Error("Please sign in first.");
   }
   if (!resp.ok) {
-    let detail = "";
-    try { const j = await resp.json(); detail = typeof j.detail === "string" ? j.detail : JSON.stringify(j.detail); }
+    let detail = "", code = null;
+    try { const j = await resp.json(); detail = typeof j.detail === "string" ? j.detail : JSON.stringify(j.detail); code = j.code || null; }
     catch (e) { detail = ""; }
     const err = new Error(detail || `The service answered ${resp.status} ${resp.statusText}.`);
     err.status = resp.status;
+    err.code = code;   // the service's reason code, where it gives one (e.g. the probing program's refusals)
     throw err;
   }
   const type = resp.headers.get("content-type") || "";

@@ -94,6 +94,7 @@ function setBusy(busy) {
 
 function showSetupId(id) {
   $("setup-id").textContent = `Setup ${id}`;
+  $("probing-link").href = `/probing?setup=${id}`;
   const u = new URL(location.href);
   u.searchParams.set("machine", $("machine").value);
   u.searchParams.set("setup", id);
@@ -102,6 +103,7 @@ function showSetupId(id) {
 
 // ------------------------------------------------------------------------------------------- progress
 function resetProgress(expected) {
+  $("probing-link").classList.add("hidden");
   state.expectedStages = Math.max(1, expected);
   $("stages").innerHTML = "";
   $("result").classList.add("hidden");
@@ -172,6 +174,7 @@ function render(s) {
   showSetupId(s.id);
   if (!$("stages").children.length) for (const st of s.stages) addStage(st);
   const located = s.status === "located";
+  $("probing-link").classList.toggle("hidden", !located);
   setProgress(100, located ? "done" : "failed");
   $("result").classList.remove("hidden");
   $("result").classList.toggle("failed", !located);

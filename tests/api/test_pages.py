@@ -9,7 +9,7 @@ from tests.support.live_server import live_server
 
 pytestmark = pytest.mark.integration
 
-PAGES = ("/", "/machines", "/setup", "/history", "/library", "/camera", "/cameras", "/users", "/login")
+PAGES = ("/", "/machines", "/setup", "/history", "/library", "/camera", "/cameras", "/users", "/login", "/probing")
 
 
 @pytest.fixture(scope="module")
@@ -72,3 +72,15 @@ def test_api_docs_load_only_from_the_service(service):
             assert r.status_code == 200 and r.headers["content-type"].startswith(kind) and len(r.content) > 100_000
         assert c.get("/docs-assets/core.py").status_code == 404          # package code is not served
         assert c.get("/docs-assets/..%2F__init__.py").status_code == 404
+
+
+def test_probing_page_has_the_automation_ids(service):
+    with service.client(None) as c:
+        html = c.get("/probing").text
+        assert c.get("/static/probing.js").status_code == 200 and c.get("/static/probing.css").status_code == 200
+    for tid in ("probing-setup-input", "slot-select", "dialect-select", "clearance-input", "plan-button", "plan-svg",
+                "frame-text", "refusal", "download-button", "no-go-input", "results-input", "results-upload",
+                "results-button", "probe-verdict", "residual-table", "pose-before-after", "residual-chart"):
+        assert f'data-testid="{tid}"' in html, tid
+    with service.client(None) as c:
+        assert 'data-testid="probing-link"' in c.get("/setup").text   # the setup page leads there

@@ -63,6 +63,7 @@ def run_scenes(n: int, seed: int) -> dict:
             continue
         assert not sc.unlocated, f"scene {k}: a program was issued with {sc.unlocated} not located"
         codes["planned"] += 1
+        codes[f"planned in a {sc.mount}"] += 1
         rep = check(sc, prog)
         if not rep.ok or len(rep.touches) != len(prog.touches):
             bad.append((k, rep.violations[:3], [(t.hit, t.obstacle) for t in rep.touches]))
@@ -77,6 +78,7 @@ def _assert_property(n: int, seed: int) -> None:
     assert out["bad"] == [], out["bad"][:5]
     assert out["codes"]["planned"] >= 0.3 * n, out["codes"]  # not vacuous: most scenes give a program
     assert out["codes"]["obstacle_not_located"] >= 0.05 * n, out["codes"]
+    assert out["codes"]["planned in a vise"] >= 0.02 * n, out["codes"]  # touches on faces the jaws hold
     assert out["min_clearance"] >= CLEARANCE - 0.05
     # every touch hits the true part within the location error (0.3 mm) of its nominal contact
     assert max(out["errors"]) <= 0.3 + 0.05 and out["touches"] >= 4 * out["codes"]["planned"]
@@ -193,3 +195,82 @@ def test_clamps_not_located_inside_drawn_zones_are_avoided():
         rep = check(sc, prog)
         assert rep.ok, rep.violations[:3]
     assert planned >= 5
+
+
+def vise_scene(above_jaws_mm: float):
+    """A 120 x 60 x 40 mm part held in a vise across its 60 mm width (the datum y face against the
+    front jaw), standing ``above_jaws_mm`` above the jaws; the located pose is the truth + 0.1 mm."""
+    from app.geometry.transforms import make_pose
+    from tests.support.probing_scenes import ProbingScene, _mesh
+
+    L, W, H, base = 120.0, 60.0, 40.0, 30.0
+    c = (300.0, 200.0)
+    part = Box(c, (L / 2, W / 2), base, base + H)
+    vise = Box(c, (L / 2 + 40, W / 2 + 60), 0.0, base)
+    jaw_top = base + H - above_jaws_mm
+    jaws = tuple(Box((c[0], c[1] + s * (W / 2 + 12.5)), (85.0, 12.5), base, jaw_top) for s in (-1, 1))
+    truth = (TrueObstacle("table", "support", (Box((400.0, 200.0), (400.0, 200.0), -60.0, 0.0),)),
+             TrueObstacle("vise_base", "support", (vise,)), TrueObstacle("vise_jaws", "fixture", jaws),
+             TrueObstacle("workpiece", "workpiece", (part,)))
+    off = make_pose(t=(0.06, -0.05, 0.05))
+    return ProbingScene(truth, (_mesh((vise,)), _mesh(jaws), _mesh((part,))), (off, off, off),
+                        ("vise_base", "vise_jaws", "workpiece"), 2, make_pose(t=(c[0] - L / 2, c[1] - W / 2, base + H)),
+                        0.1, (), "vise")
+
+
+def test_touches_on_a_face_the_vise_holds_move_up_into_the_free_band():
+    """The part stands 10.5 mm above the jaws: at the default depth (5 mm below the edge) the ball
+    would pass 1.5 mm over the jaw, so the touches on the held face move up the face until the ball
+    keeps the clearance over the jaw, and the independent checker finds no violation; every touch
+    hits the part. At 6 mm above the jaws there is no such band: refused, saying how much is needed."""
+    sc = vise_scene(10.5)
+    prog = plan(sc)
+    top = 70.0
+    held = [t for t in prog.touches if t.name.startswith("y")]
+    assert len(held) == 2, [t.name for t in prog.touches]
+    for t in held:  # moved up from 5 mm below the edge, still on the face with its margin
+        assert 2.0 < top - t.contact[2] < 5.0 - 0.2, t
+        assert t.approach_tip[2] >= top - 10.5 + CLEARANCE, t  # the ball's bottom keeps the clearance over the jaw
+    rep = check(sc, prog)
+    assert rep.ok and len(rep.touches) == 4 and all(t.hit for t in rep.touches), rep.violations[:3]
+    assert max(t.error_mm for t in rep.touches) < 0.2
+    x = next(t for t in prog.touches if t.name == "x")  # the free face keeps its default depth
+    assert top - x.contact[2] == pytest.approx(5.0, abs=0.2)
+
+    with pytest.raises(ProbingRefused) as exc:
+        plan(vise_scene(6.0))
+    assert exc.value.code == "touch_blocked"
+    msg = str(exc.value)
+    assert "by vise_jaws" in msg and "mm above vise_jaws at touch y1" in msg and "free band needs" in msg, msg
+    room = float(msg.split("the part stands ")[1].split(" mm")[0])
+    assert room == pytest.approx(6.0, abs=0.6), msg
+
+
+def test_random_vise_scenes_move_touches_up_or_refuse_with_the_room():
+    """120 random parts in a vise standing 0 to 16 mm above the jaws: 0 violations in what is
+    issued; every part with a free band wider than what a touch needs (ball + clearance + edge
+    margin + 2 x 3 sigma, 1 mm to spare for the raster) gets a program; every refusal says how far
+    the part stands above the jaws."""
+    from app.planning.probing import ProbingParams
+
+    p = ProbingParams()
+    need = p.ball_radius_mm + CLEARANCE + p.edge_margin_mm + 2 * 0.3
+    rng = np.random.default_rng(2018)
+    planned = moved = 0
+    for k in range(120):
+        sc = random_probing_scene(rng, mount="vise", above_jaws_mm=(0.0, 16.0))
+        wp = next(o for o in sc.truth if o.name == "workpiece").parts[0]
+        above = wp.z1 - next(o for o in sc.truth if o.name == "vise_jaws").parts[0].z1
+        try:
+            prog = plan(sc, assumed=[])
+        except ProbingRefused as exc:
+            assert above < need + 1.0, (k, above, str(exc))
+            if exc.code == "touch_blocked" and "vise_jaws" in str(exc):
+                assert "above vise_jaws at touch" in str(exc), str(exc)
+            continue
+        planned += 1
+        moved += any(wp.z1 - t.contact[2] < 4.9 for t in prog.touches if t.name != "z")
+        rep = check(sc, prog)
+        assert rep.ok and len(rep.touches) == len(prog.touches), (k, rep.violations[:3])
+    print(f"vise scenes: {planned} of 120 planned, {moved} with touches moved up")
+    assert planned >= 40 and moved >= 5, (planned, moved)

@@ -61,12 +61,15 @@ def _mesh(parts) -> trimesh.Trimesh:
     return trimesh.util.concatenate(out)
 
 
-def random_probing_scene(rng: np.random.Generator, error_mm: float = 0.3, p_located: float = 0.75) -> ProbingScene:
+def random_probing_scene(rng: np.random.Generator, error_mm: float = 0.3, p_located: float = 0.75,
+                         mount: str | None = None, above_jaws_mm: tuple[float, float] | None = None) -> ProbingScene:
+    """A random scene; ``mount`` forces table / parallels / vise, ``above_jaws_mm`` draws how far a
+    part in a vise stands above its jaws (default: jaws 10 mm high up to 10 mm above the part)."""
     L, W, H = rng.uniform(60, 220), rng.uniform(40, 150), rng.uniform(12, 80)
     yaw = float(rng.uniform(-40, 40))
     R = _rz(yaw)[:2, :2]
     c = np.array([rng.uniform(150, 650), rng.uniform(120, 280)])
-    mount = str(rng.choice(["table", "parallels", "vise"], p=[0.55, 0.25, 0.2]))
+    mount = mount or str(rng.choice(["table", "parallels", "vise"], p=[0.55, 0.25, 0.2]))
     objs: list[tuple[str, str, tuple, bool]] = []  # name, role, parts, located
     base = 0.0
     if mount == "parallels":
@@ -77,7 +80,7 @@ def random_probing_scene(rng: np.random.Generator, error_mm: float = 0.3, p_loca
     elif mount == "vise":
         base = 30.0
         objs.append(("vise_base", "support", (Box(tuple(c), (L / 2 + 40, W / 2 + 60), 0.0, base, yaw),), True))
-        jaw_h = float(rng.uniform(10, H + 10))
+        jaw_h = float(rng.uniform(10, H + 10)) if above_jaws_mm is None else H - float(rng.uniform(*above_jaws_mm))
         jaws = tuple(Box(tuple(c + R @ (0.0, s * (W / 2 + 12.5))), (min(L / 2, 75) + 10, 12.5), base, base + jaw_h, yaw)
                      for s in (-1, 1))
         objs.append(("vise_jaws", "fixture", jaws, True))

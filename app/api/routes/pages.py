@@ -19,7 +19,7 @@ STATIC_DIR = FRONTEND_DIR / "static"
 # URL -> HTML file in frontend/
 PAGES = {"": "index.html", "machines": "machines.html", "setup": "setup.html", "history": "history.html",
          "library": "library.html", "camera": "camera.html", "login": "login.html", "sheet": "sheet.html",
-         "rotary": "rotary.html", "cameras": "cameras.html", "users": "users.html"}
+         "rotary": "rotary.html", "cameras": "cameras.html", "users": "users.html", "probing": "probing.html"}
 STATIC_TYPES = {".css": "text/css", ".js": "text/javascript", ".svg": "image/svg+xml", ".png": "image/png",
                 ".ico": "image/x-icon"}
 

@@ -35,6 +35,41 @@ def plan_path(session: SessionDep, files: FilesDep, body: PlanBody) -> dict:
     return svc.plan(session, files, body.model_dump())
 
 
+def _closed_parameters(request: Request, allowed: tuple[str, ...]) -> None:
+    """Unknown or repeated query parameters are refused (422 with a code): every parameter is data."""
+    keys = [k for k, _ in request.query_params.multi_items()]
+    unknown = sorted({k for k in keys if k not in allowed})
+    if unknown:
+        raise Invalid(f"unknown query parameter(s) {', '.join(repr(k[:40]) for k in unknown)}; use "
+                      f"{', '.join(allowed)}", code="unknown_parameter")
+    if len(keys) != len(set(keys)):
+        raise Invalid("a query parameter is given twice", code="repeated_parameter")
+
+
+@router.get("/setups/{setup_id}/probing-options", summary="What a probing program of this setup can be made with",
+            description="Dialects, the controller's work-offset slots, the clearance range, and the slot a verified "
+                        "export of the current revision was written to (the frame the program should run in).")
+def probing_options(session: SessionDep, files: FilesDep, setup_id: int) -> dict:
+    from app.services import probing_summary
+
+    return probing_summary.probing_options(session, files, setup_id)
+
+
+@router.get("/setups/{setup_id}/probing-plan", summary="The probing program as data, for the probing page",
+            description="The same gates and parameters as probing-program (refused with the same 409/422 and "
+                        "reason `code`): the frame it runs in, the obstacles with their source (located, assumed, "
+                        "drawn), the touches and the travel (table frame, mm), and the program's URL.")
+def probing_plan(request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep, setup_id: int,
+                 wcs: str = Query(default="G54", max_length=8), dialect: str = Query(default="linuxcnc", max_length=16),
+                 clearance_mm: float = Query(default=5.0),
+                 no_go: str | None = Query(default=None, max_length=2000)) -> dict:
+    from app.services import probing_summary
+
+    _closed_parameters(request, tuple(p for p in svc.PROGRAM_PARAMS if p != "dry_run"))
+    return probing_summary.plan_summary(session, files, settings, setup_id, wcs=wcs, dialect=dialect,
+                                        clearance_mm=clearance_mm, no_go=no_go)
+
+
 @router.get("/setups/{setup_id}/probing-program", response_class=Response,
             summary="LinuxCNC probing program for the confirmed workpiece (G38.2; dry_run: plain moves)",
             description="Refused (409/422 with a reason `code`) unless the setup passes the export's gates, every "
@@ -50,13 +85,7 @@ def probing_program(request: Request, session: SessionDep, files: FilesDep, sett
                                               description="no-go zones the operator drew, table frame: "
                                                           "x0,y0,x1,y1,top_mm;... (objects asked for but not "
                                                           "located are taken to be inside them)")) -> Response:
-    keys = [k for k, _ in request.query_params.multi_items()]
-    unknown = sorted({k for k in keys if k not in svc.PROGRAM_PARAMS})
-    if unknown:
-        raise Invalid(f"unknown query parameter(s) {', '.join(repr(k[:40]) for k in unknown)}; use "
-                      f"{', '.join(svc.PROGRAM_PARAMS)}", code="unknown_parameter")
-    if len(keys) != len(set(keys)):
-        raise Invalid("a query parameter is given twice", code="repeated_parameter")
+    _closed_parameters(request, svc.PROGRAM_PARAMS)
     text = svc.probing_program(session, files, settings, setup_id, dry_run=dry_run, wcs=wcs, dialect=dialect,
                                clearance_mm=clearance_mm, no_go=no_go)
     return Response(text, media_type="text/plain",
