@@ -157,7 +157,7 @@ def _unlocated(session: Session, files: FileStore, s) -> list[tuple[str, float]]
     return out
 
 
-def _table_xy(session: Session, files: FileStore, machine) -> tuple[float, float, float, float]:
+def table_xy(session: Session, files: FileStore, machine) -> tuple[float, float, float, float]:
     """The table model's xy bounds in the table frame (mm)."""
     rev = library.get_revision(session, machine.table_model_id, machine.table_revision)
     b = load_mesh(files.read(rev.glb_sha256), "model.glb", "mm").bounds
@@ -212,7 +212,7 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
     zones = []
     if no_go is not None:
         try:
-            zones = drawn_zones(no_go, _table_xy(session, files, machine),
+            zones = drawn_zones(no_go, table_xy(session, files, machine),
                                 table_z_max_mm(machine.T_machine_table, machine.travel_mm))
         except ValueError as exc:
             raise Invalid(str(exc), code="no_go_invalid") from None
@@ -232,7 +232,7 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
     if unlocated and zones:  # the operator drew where they are
         assumed = assumed_in_zones(unlocated, zones, support)
     elif unlocated:
-        assumed = [*assumed_unlocated(unlocated, _table_xy(session, files, machine), support), *zones]
+        assumed = [*assumed_unlocated(unlocated, table_xy(session, files, machine), support), *zones]
     else:
         assumed = zones
     frame = (_frame_of(session, machine, s, slot, off) if check_frame

@@ -12,19 +12,24 @@ from __future__ import annotations
 from urllib.parse import urlencode
 
 import numpy as np
+from shapely.geometry import MultiPoint
 from sqlmodel import Session, select
 
+from app.geometry.transforms import transform_points
 from app.services.planning import (
     CLEARANCE_RANGE_MM,
     PROBE_DIALECTS,
-    _table_xy,
+    table_xy,
     check_program_params,
     controller_slots,
     probing_plan,
     program_frame,
+    setup_scene,
 )
+from app.services.machines import get_machine
 from app.services.setups import get_setup
 from app.store.files import FileStore
+from app.store.models import Export
 
 
 def _round(v, nd: int = 4) -> list:
@@ -34,22 +39,15 @@ def _round(v, nd: int = 4) -> list:
 def _scene_outline(session: Session, files: FileStore, s, machine) -> dict:
     """The table's xy bounds, the located objects from above (hull, top) and the names asked for but
     not located: enough to draw no-go zones on when no program is on offer."""
-    from shapely.geometry import MultiPoint
-
-    from app.geometry.transforms import transform_points
-    from app.services.planning import setup_scene
-
     located = []
     if s.status == "located" and s.result:
         sc = setup_scene(session, files, s.id)
-        # a Scene once issue 15's typed result is merged, a (meshes, poses, names, sigma, workpiece) tuple before
-        meshes, poses, names = (sc.meshes, sc.poses, sc.names) if hasattr(sc, "meshes") else sc[:3]
-        for m, T, n in zip(meshes, poses, names):
+        for m, T, n in zip(sc.meshes, sc.poses, sc.names):
             V = transform_points(T, m.vertices)
             hull = MultiPoint([tuple(v) for v in V[:, :2]]).convex_hull
             coords = np.asarray(hull.exterior.coords)[:-1] if hull.geom_type == "Polygon" else np.zeros((0, 2))
             located.append({"name": n, "footprint_xy_mm": _round(coords, 2), "top_mm": round(float(V[:, 2].max()), 3)})
-    return {"table_xy_mm": list(_table_xy(session, files, machine)), "located": located,
+    return {"table_xy_mm": list(table_xy(session, files, machine)), "located": located,
             "not_located": [nf["name"] for nf in (s.result or {}).get("not_found") or [] if nf.get("name")]}
 
 
@@ -58,9 +56,6 @@ def probing_options(session: Session, files: FileStore, setup_id: int) -> dict:
     clearance range), the slot a verified export of the current revision was written to (the frame
     the program should run in), if any, and the scene's outline (table, located objects from above,
     the names not located)."""
-    from app.services.machines import get_machine
-    from app.store.models import Export
-
     s = get_setup(session, setup_id)
     machine = get_machine(session, s.machine_id)
     kind = (machine.controller or {}).get("kind")
@@ -79,8 +74,6 @@ def probing_options(session: Session, files: FileStore, setup_id: int) -> dict:
 def plan_summary(session: Session, files: FileStore, settings, setup_id: int, *, wcs: str, dialect: str,
                  clearance_mm: float, no_go: str | None) -> dict:
     """The program the probing page offers, as data: refusals are raised as by the program endpoint."""
-    from app.geometry.transforms import transform_points
-    from app.services.machines import get_machine
 
     prog = probing_plan(session, files, settings, setup_id, dry_run=False, wcs=wcs, dialect=dialect,
                         clearance_mm=clearance_mm, no_go=no_go)
@@ -102,7 +95,7 @@ def plan_summary(session: Session, files: FileStore, settings, setup_id: int, *,
                      "face_normal_datum": _round(t.face_normal_datum, 6), "face_offset_mm": round(t.face_offset_mm, 4)}
                     for t in prog.touches],
         "travel_mm": [_round(p.waypoints, 2) for p in prog.travel],
-        "table_xy_mm": list(_table_xy(session, files, machine)),
+        "table_xy_mm": list(table_xy(session, files, machine)),
         "program_lines": len(lines),
         "program_url": f"/api/v1/setups/{s.id}/probing-program?{urlencode(params)}",
     }
