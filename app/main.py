@@ -12,11 +12,13 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.routing import APIRoute
 from sqlalchemy.exc import DataError
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 import app as app_pkg
 from app.api.deps import path_ids_in_range
 from app.api.headers import SecurityHeaders
 from app.api.limits import RequestGuard, route_table
+from app.api.problems import problem
 from app.api.routes import (audit, auth, cameras, health, machines, models, pages, planning, rotary, setups, sheet,
                             viewer)
 from app.api.routes import docs as api_docs
@@ -104,8 +106,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @app.exception_handler(ServiceError)
     async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
-        body = {"detail": exc.detail} if exc.code is None else {"detail": exc.detail, "code": exc.code}
-        return JSONResponse(status_code=exc.status_code, content=body)
+        return JSONResponse(status_code=exc.status_code, content=problem(exc.status_code, exc.detail, exc.code))
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(_request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        # FastAPI's own answer without the code: unknown paths, wrong methods, sign-in and role refusals
+        detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+        return JSONResponse(status_code=exc.status_code, headers=getattr(exc, "headers", None),
+                            content=problem(exc.status_code, detail, getattr(exc, "code", None)))
 
     @app.exception_handler(RequestValidationError)
     async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -120,23 +128,24 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.exception_handler(OverflowError)
     async def _overflow(_request: Request, _exc: OverflowError) -> JSONResponse:
         # SQLite cannot bind an integer past 2^63: whatever it was looked up by does not exist
-        return JSONResponse(status_code=404, content={"detail": "not found: a number in the request is out of range "
-                                                                "for an id"})
+        return JSONResponse(status_code=404, content=problem(404, "not found: a number in the request is out of "
+                                                                  "range for an id", "id_out_of_range"))
 
     @app.exception_handler(DataError)
     async def _data_error(_request: Request, exc: DataError) -> JSONResponse:
         # PostgreSQL refused a value (22003: integer out of range; 22001: text too long): the request's fault
         code = getattr(getattr(exc, "orig", None), "sqlstate", "") or ""
         if code == "22003":
-            return JSONResponse(status_code=404, content={"detail": "not found: a number in the request is out of "
-                                                                    "range for an id"})
-        return JSONResponse(status_code=422, content={"detail": f"a value does not fit the database ({code}): "
-                                                                f"{str(getattr(exc, 'orig', exc)).splitlines()[0]}"})
+            return JSONResponse(status_code=404, content=problem(404, "not found: a number in the request is out "
+                                                                      "of range for an id", "id_out_of_range"))
+        return JSONResponse(status_code=422, content=problem(422, f"a value does not fit the database ({code}): "
+                                                                  f"{str(getattr(exc, 'orig', exc)).splitlines()[0]}",
+                                                             "value_does_not_fit"))
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error", extra={"path": request.url.path})
-        return JSONResponse(status_code=500, content={"detail": "internal error; it has been logged"})
+        return JSONResponse(status_code=500, content=problem(500, "internal error; it has been logged"))
 
     install_error_schema(app)
 
@@ -154,9 +163,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 PROBLEM_SCHEMA = {
-    "title": "Problem", "type": "object", "required": ["detail"],
+    "title": "Problem", "type": "object", "required": ["detail", "code"],
     "properties": {
         "detail": {"type": "string", "description": "Why, in one sentence (the first problem for a 422)"},
+        "code": {"type": "string", "description": "The reason as a machine-readable code (snake_case): "
+                                                  "clients choose their advice by it, not by the sentence"},
         "errors": {"type": "array", "items": {"$ref": "#/components/schemas/ValidationError"},
                    "description": "422 from request validation: every problem, for machines"},
     },

@@ -37,7 +37,7 @@ SettingsDep = Annotated[Settings, Depends(get_app_settings)]
 
 
 # --------------------------------------------------------------------------------------- access
-from fastapi import HTTPException  # noqa: E402
+from app.api.problems import Refused  # noqa: E402
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer  # noqa: E402
 
 from app.services.access import Principal, resolve_token  # noqa: E402
@@ -59,18 +59,19 @@ def token_of(headers, cookies) -> tuple[str | None, bool]:
     return (token or None), bool(token)
 
 
-def refusal(principal: Principal | None, had_token: bool, guard: str) -> tuple[int, str] | None:
-    """(status, reason) when the caller may not use a route guarded by ``guard``; None when it may."""
+def refusal(principal: Principal | None, had_token: bool, guard: str) -> tuple[int, str, str] | None:
+    """(status, reason, reason code) when the caller may not use a route guarded by ``guard``; None
+    when it may."""
     if principal is None:
         if not had_token:
-            return 401, "sign in (POST /api/v1/auth/login) or send 'Authorization: Bearer <API key>'"
-        return 401, "the key or session is unknown, revoked or expired; sign in again"
+            return 401, "sign in (POST /api/v1/auth/login) or send 'Authorization: Bearer <API key>'", "sign_in_required"
+        return 401, "the key or session is unknown, revoked or expired; sign in again", "session_expired"
     if guard == GUARD_ADMIN and not principal.is_admin:
         return 403, (f"{principal.label()} may not change the library, cameras, machines or accounts; "
-                     "an admin must do this")
+                     "an admin must do this"), "admin_required"
     if guard == GUARD_PERSON and not principal.is_person:
         return 403, (f"{principal.label()} may create setups and read results, but confirming, "
-                     "adjusting and exporting need a signed-in operator")
+                     "adjusting and exporting need a signed-in operator"), "operator_required"
     return None
 
 
@@ -83,7 +84,7 @@ def _refuse(principal: Principal | None, had_token: bool, guard: str, request: R
 
         audit_refusal(request.app.state.engine, principal.label(), f"{request.method} {request.url.path}",
                       request.client.host if request.client else "unknown", why[1])
-    raise HTTPException(why[0], why[1], headers={"WWW-Authenticate": "Bearer"} if why[0] == 401 else None)
+    raise Refused(why[0], why[1], why[2], headers={"WWW-Authenticate": "Bearer"} if why[0] == 401 else None)
 
 
 def get_principal(request: Request, session: SessionDep,

@@ -29,6 +29,7 @@ from fastapi.routing import APIRoute
 from starlette.datastructures import Headers
 from starlette.requests import cookie_parser
 
+from app.api.problems import problem
 from app.api.deps import GUARD_ADMIN, GUARD_ANY, GUARD_PERSON, get_principal, refusal, require_admin, \
     require_person, token_of
 from app.services.audit import audit_refusal
@@ -162,7 +163,8 @@ class RequestGuard:
                 await anyio.to_thread.run_sync(audit_refusal, state.engine, principal.label(),
                                                f"{scope['method']} {path}", client[0], why[1])
             if why is not None:
-                await _answer(send, why[0], why[1], {"www-authenticate": "Bearer"} if why[0] == 401 else None)
+                await _answer(send, why[0], why[1], {"www-authenticate": "Bearer"} if why[0] == 401 else None,
+                              code=why[2])
                 return
         if path in OPEN_PATHS:  # no session needed: refused only when the request names another origin
             foreign = bool(headers.get("origin") or headers.get("referer")) and not same_origin(headers, settings)
@@ -170,7 +172,7 @@ class RequestGuard:
             foreign = from_cookie and not same_origin(headers, settings)
         if foreign:
             await _answer(send, 403, "cross-origin write refused: a request signed in by the session cookie must "
-                                     "come from this service's own pages (Origin or Referer header)")
+                                     "come from this service's own pages (Origin or Referer header)", code="cross_origin")
             return
 
         upload = rule is not None and rule.upload
@@ -181,7 +183,7 @@ class RequestGuard:
             try:
                 too_big = int(length) > limit
             except ValueError:
-                await _answer(send, 400, "Content-Length is not a number")
+                await _answer(send, 400, "Content-Length is not a number", code="bad_content_length")
                 return
             if too_big:
                 await _answer(send, 413, f"request body is {int(length):,} bytes; this route takes at most {what}")
@@ -194,12 +196,12 @@ class RequestGuard:
                 return
             depth = json_depth(body)
             if depth > settings.max_json_depth:
-                await _answer(send, 422, f"JSON nested {depth} deep; at most {settings.max_json_depth} levels")
+                await _answer(send, 422, f"JSON nested {depth} deep; at most {settings.max_json_depth} levels", code="json_too_deep")
                 return
             bad = non_finite_number(body)
             if bad:
                 await _answer(send, 422, f"JSON numbers must be finite: {bad} is not a number here "
-                                         "(NaN, Infinity and overflowing values are refused)")
+                                         "(NaN, Infinity and overflowing values are refused)", code="non_finite_number")
                 return
             await self.app(scope, _replay(body, receive), send)
             return
@@ -278,8 +280,8 @@ def _replay(body: bytes, receive):
     return replay
 
 
-async def _answer(send, status: int, detail: str, extra: dict[str, str] | None = None) -> None:
-    body = json.dumps({"detail": detail}).encode()
+async def _answer(send, status: int, detail: str, extra: dict[str, str] | None = None, code: str | None = None) -> None:
+    body = json.dumps(problem(status, detail, code)).encode()
     headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
     headers += [(k.encode(), v.encode()) for k, v in (extra or {}).items()]
     await send({"type": "http.response.start", "status": status, "headers": headers})

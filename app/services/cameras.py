@@ -80,11 +80,11 @@ def grab_frame(cam: Camera) -> np.ndarray:
     """One BGR frame from the camera's source; 409 for upload-only cameras, 502 when the source fails."""
     if cam.source.get("kind", "upload") == "upload":
         raise Invalid(f"camera {cam.id} ({cam.name}) has no image source (upload only); "
-                      "configure an HTTP snapshot URL, a folder or an OpenCV device, or upload an image")
+                      "configure an HTTP snapshot URL, a folder or an OpenCV device, or upload an image", code="camera_upload_only")
     try:
         return make_source(cam.source).grab()
     except SourceError as exc:
-        raise Unavailable(str(exc)) from None
+        raise Unavailable(str(exc), code="camera_unavailable") from None
 
 
 def read_image(data: bytes, what: str = "image") -> np.ndarray:

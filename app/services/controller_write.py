@@ -33,18 +33,19 @@ def check_slot(slot: str) -> str:
     try:
         slot_number(slot)
     except ValueError as exc:
-        raise Invalid(str(exc)) from None
+        raise Invalid(str(exc), code="bad_slot") from None
     return slot
 
 
 def open_controller(machine) -> Controller:
     """The machine's controller adapter, or Invalid when none is configured or its settings are wrong."""
     if not machine.controller:
-        raise Invalid(f"machine {machine.id} ({machine.name}) has no controller configured")
+        raise Invalid(f"machine {machine.id} ({machine.name}) has no controller configured", code="no_controller")
     try:
         return make_controller(machine.controller)
     except ValueError as exc:
-        raise Invalid(f"machine {machine.id} controller settings: {exc}") from None
+        raise Invalid(f"machine {machine.id} controller settings: {exc}",
+                      code="controller_settings_invalid") from None
 
 
 def travel_reasons(machine, offset: WorkOffset, axes: str = "xyz") -> list[str]:
@@ -124,7 +125,7 @@ def guarded_write(session: Session, controller: Controller, *, slot: str, actor:
         before, empty = None, str(exc)
     except ControllerError as exc:
         unreachable(exc)
-        raise Unavailable(f"{exc}; nothing was written") from None
+        raise Unavailable(f"{exc}; nothing was written", code="controller_unreachable") from None
     offset = target(before, empty)
     before_dict = before.as_dict() if before is not None else None
     if writing is not None:

@@ -186,14 +186,14 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
     same_key = session.exec(select(Export).where(Export.idempotency_key == key)).first()
     if same_key is not None and (done is None or same_key.id != done.id):
         raise Conflict(f"idempotency key {key!r} belongs to export {same_key.id} (setup {same_key.setup_id}, "
-                       f"{same_key.slot}, revision {same_key.result_revision}), not to this one")
+                       f"{same_key.slot}, revision {same_key.result_revision}), not to this one", code="idempotency_key_taken")
     if done is not None and done.status == "written":
         return done  # a retry: answered from the first export, never written twice
     if done is not None and done.status in ("pending", "writing") and _age_s(done) < WRITING_TIMEOUT_S:
         return done  # under way right now
     machine = get_machine(session, setup.machine_id)
     if not machine.controller:
-        raise Invalid(f"machine {machine.id} ({machine.name}) has no controller configured")
+        raise Invalid(f"machine {machine.id} ({machine.name}) has no controller configured", code="no_controller")
     offset, off = plausibility(setup, machine, settings)
     controller = open_controller(machine)
     try:
@@ -203,7 +203,7 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
             if done.status == "written":
                 return done
             if done.status == "unknown":
-                raise Unavailable(f"export to {slot}: {done.reason}")
+                raise Unavailable(f"export to {slot}: {done.reason}", code="export_outcome_unknown")
         row = done or Export(setup_id=setup_id, result_revision=setup.result_revision, slot=slot, actor=actor,
                              status="pending")
         row.status, row.actor, row.reason, row.idempotency_key = "pending", actor, "", key
@@ -214,7 +214,8 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
             session.flush()
         except IntegrityError:
             session.rollback()
-            raise Conflict(f"an export of setup {setup_id} to {slot} is already under way") from None
+            raise Conflict(f"an export of setup {setup_id} to {slot} is already under way",
+                               code="export_under_way") from None
         audit(session, actor, "export.attempt", setup_id=setup_id, machine_id=machine.id, slot=slot,
               export_id=row.id, idempotency_key=key)
         session.commit()  # the attempt is on record before the controller is touched
@@ -229,7 +230,8 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
             if why and not acknowledge_change:
                 row.before = before.as_dict() if before is not None else None
                 _settle(session, row, "failed", f"refused, nothing written: {why}", actor, machine.id)
-                refused = Conflict(why)
+                refused = Conflict(why, code="change_needs_acknowledgement" if before is not None
+                                   else "first_export_needs_acknowledgement")
                 refused.audited = True  # the row and its export.failed entry say it already
                 raise refused
             return offset
@@ -250,7 +252,8 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
             events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": row.reason})
             if row.status != "written":
                 raise Unavailable(f"export to {slot} {'failed' if row.status == 'failed' else 'broke off'}: "
-                                  f"{verdict.error}; status {row.status}: {row.reason}")
+                                  f"{verdict.error}; status {row.status}: {row.reason}",
+                                  code="export_failed" if row.status == "failed" else "export_outcome_unknown")
             return row
         if row.status == "written":
             events.publish("offset.exported", {"setup_id": setup_id, "machine_id": machine.id, "slot": slot,
@@ -259,7 +262,7 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
             log.error("export not confirmed by read-back", extra={"setup_id": setup_id, "reason": row.reason})
             events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": row.reason})
             if row.status == "unknown":
-                raise Unavailable(f"export to {slot}: {row.reason}")
+                raise Unavailable(f"export to {slot}: {row.reason}", code="export_outcome_unknown")
         return row
     finally:
         controller.close()
@@ -295,8 +298,8 @@ def read_current_offset(session: Session, machine_id: int, slot: str) -> WorkOff
     try:
         return controller.read_offset(slot)
     except NoOffsetYet as exc:
-        raise NotFound(f"{exc}; the first export will write it") from None
+        raise NotFound(f"{exc}; the first export will write it", code="slot_empty") from None
     except ControllerError as exc:
-        raise Unavailable(str(exc)) from None
+        raise Unavailable(str(exc), code="controller_unreachable") from None
     finally:
         controller.close()

@@ -49,12 +49,12 @@ def create_setup(session: Session, files: FileStore, *, machine_id: int, camera_
     machine = get_machine(session, machine_id)
     if camera_id is None:
         if not machine.camera_ids:
-            raise Invalid(f"machine {machine_id} has no camera; give camera_id")
+            raise Invalid(f"machine {machine_id} has no camera; give camera_id", code="no_camera")
         camera_id = machine.camera_ids[0]
     cam = get_camera(session, camera_id)
     if not cam.intrinsics:
         raise Invalid(f"camera {cam.id} ({cam.name}) has no intrinsics; calibrate it first "
-                      f"(POST /api/v1/cameras/{cam.id}/calibrations)")
+                      f"(POST /api/v1/cameras/{cam.id}/calibrations)", code="camera_not_calibrated")
     models = []
     for mid in model_ids:
         m = library.get_model(session, mid, include_deleted=False)
@@ -74,7 +74,7 @@ def create_setup(session: Session, files: FileStore, *, machine_id: int, camera_
     h, w = frame.shape[:2]
     if (w, h) != (cam.intrinsics["width"], cam.intrinsics["height"]):
         raise Invalid(f"image is {w} x {h} px but camera {cam.id} is calibrated for "
-                      f"{cam.intrinsics['width']} x {cam.intrinsics['height']} px")
+                      f"{cam.intrinsics['width']} x {cam.intrinsics['height']} px", code="image_size_mismatch")
     cap = Capture(camera_id=cam.id, image_sha256=files.put(session, data, image_media_type(data)), width=w, height=h,
                   origin=origin)
     session.add(cap)

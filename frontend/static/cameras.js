@@ -1,7 +1,6 @@
 // Cameras: admins add and change cameras (image source, intrinsics) and grab a test picture; operators
 // see the same read-only. Calibration itself is on /camera.
 "use strict";
-const $ = (id) => document.getElementById(id);
 const state = { cameras: [], editing: null, admin: false, grabUrl: null };
 
 function showSourceFields() {

@@ -1,8 +1,14 @@
-// Shared helpers of the operator pages (no framework, no build step).
+// Shared helpers of the operator pages (no framework, no build step). Every page loads this file
+// (frontend/_layout.html) and then its own script from /static; no page has an inline script.
 "use strict";
 
+/** The element with this id. A property of the window (not a declaration), so a page script that
+ *  still declares its own ``$`` keeps working. */
+globalThis.$ = (id) => document.getElementById(id);
+
 /** Call the REST API; resolve to JSON (or a Response for non-JSON), reject with an Error whose message is
- *  the service's plain sentence (never a stack trace). */
+ *  the service's plain sentence (never a stack trace), ``status`` the HTTP status and ``code`` the
+ *  service's reason code (app/api/problems.py): pages choose their advice by the code, not the text. */
 async function api(path, opts = {}) {
   let resp;
   try {
@@ -15,12 +21,15 @@ async function api(path, opts = {}) {
     throw new Error("Please sign in first.");
   }
   if (!resp.ok) {
-    let detail = "", code = null;
-    try { const j = await resp.json(); detail = typeof j.detail === "string" ? j.detail : JSON.stringify(j.detail); code = j.code || null; }
-    catch (e) { detail = ""; }
+    let detail = "", code = "";
+    try {
+      const j = await resp.json();
+      detail = typeof j.detail === "string" ? j.detail : JSON.stringify(j.detail);
+      code = typeof j.code === "string" ? j.code : "";
+    } catch (e) { detail = ""; }
     const err = new Error(detail || `The service answered ${resp.status} ${resp.statusText}.`);
     err.status = resp.status;
-    err.code = code;   // the service's reason code, where it gives one (e.g. the probing program's refusals)
+    err.code = code;
     throw err;
   }
   const type = resp.headers.get("content-type") || "";

@@ -1,7 +1,6 @@
 // Machines: every signed-in user picks the machine here; admins add, change and delete machines
 // (operators see the same form read-only). Test connection reads the controller's offset in a slot.
 "use strict";
-const $ = (id) => document.getElementById(id);
 const state = { machines: [], tables: [], cameras: [], editing: null, admin: false };
 const AXES = ["x", "y", "z"];
 
@@ -182,7 +181,7 @@ $("test").addEventListener("click", async () => {
     const o = await api(`/api/v1/machines/${m.id}/offsets/${slot}`);
     say("#form-msg", `Connected. ${o.slot} now holds X ${fmt(o.x_mm, 3)}, Y ${fmt(o.y_mm, 3)}, Z ${fmt(o.z_mm, 3)} mm, C ${fmt(o.c_deg, 3)}°.`, "ok");
   } catch (e) {
-    say("#form-msg", e.status === 404 ? `Reached, but: ${e.message}` : `No connection: ${e.message}`, e.status === 404 ? "warn" : "bad");
+    say("#form-msg", e.code === "slot_empty" ? `Reached, but: ${e.message}` : `No connection: ${e.message}`, e.code === "slot_empty" ? "warn" : "bad");
   }
 });
 

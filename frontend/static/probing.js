@@ -3,7 +3,6 @@
 // code); send the probed points back and see the residual per touch and the pose before and after.
 "use strict";
 
-const $ = (id) => document.getElementById(id);
 const SVG = "http://www.w3.org/2000/svg";
 const state = { setup: null, options: null, plan: null, lastPlan: null, corner: null, sent: null };
 

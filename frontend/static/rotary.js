@@ -3,7 +3,6 @@
 // downloads and the compensation proposals; list past runs.
 "use strict";
 
-const $ = (id) => document.getElementById(id);
 let chosen = [];   // File objects in the order they are sent
 
 /** Natural order of file names: img2 before img10. */

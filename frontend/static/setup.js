@@ -2,32 +2,38 @@
 // adjust, refine, confirm, export.
 "use strict";
 
-const $ = (id) => document.getElementById(id);
-const state = { setup: null, events: null, poll: null, expectedStages: 2, exportPath: null, viewerFor: null,
+const state = { setup: null, events: null, poll: null, expectedStages: 2, viewerFor: null,
                 machines: [], current: null };  // current: {key, values | null, why} of the controller's slot
 
-const ADVICE = [
-  [/marker/i, "Move the camera so that more table markers are in the picture, clean the markers, or add light; then take the picture again."],
-  [/intrinsic|calibrat/i, "Calibrate this camera on the Cameras page first."],
-  [/not recogni|not found|no candidate|score/i, "Check that the right part is chosen and that it is well lit and not hidden, then take the picture again."],
-  [/camera|source|grab|deliver/i, "Check that the camera is switched on and connected, or upload a photo instead."],
-  [/image is .* px/i, "Use a picture from this machine's camera at its full resolution."],
-];
+// What to do, chosen by the service's reason code (a refused start: app/api/problems.py) or by the
+// stage that failed (a localisation that ran and failed), never by the words of the reason.
+const CAMERA_ADVICE = "Check that the camera is switched on and connected, or upload a photo instead.";
+const CODE_ADVICE = {
+  camera_not_calibrated: "Calibrate this camera on the Cameras page first.",
+  camera_unavailable: CAMERA_ADVICE,
+  camera_upload_only: CAMERA_ADVICE,
+  no_camera: "An admin adds a camera to this machine on the Machines page.",
+  image_size_mismatch: "Use a picture from this machine's camera at its full resolution.",
+};
+const MARKER_ADVICE = "Move the camera so that more table markers are in the picture, clean the markers, or add light; then take the picture again.";
+const PART_ADVICE = "Check that the right part is chosen and that it is well lit and not hidden, then take the picture again.";
+const DEFAULT_ADVICE = "Look at the picture, then take a new one. If it keeps failing, call the person who set up the camera.";
 
 function sentence(text) {
   text = (text || "").trim();
   return text && !/[.!?]$/.test(text) ? text + "." : text;
 }
 
-/** The reason, and what to do when the reason does not already say it. */
-function explain(reason) {
-  const r = sentence(reason || "No result.");
-  return /\b(check|move|try|calibrate|clean|upload|use)\b/i.test(reason || "") ? r : `${r} ${advice(reason)}`;
+/** The reason, and what to do: ``advice`` (from a code or a stage) or the general advice. */
+function explain(reason, advice) {
+  return `${sentence(reason || "No result.")} ${advice || DEFAULT_ADVICE}`;
 }
 
-function advice(reason) {
-  for (const [re, text] of ADVICE) if (re.test(reason || "")) return text;
-  return "Look at the picture, then take a new one. If it keeps failing, call the person who set up the camera.";
+/** The advice for a localisation that failed, by its first failed stage (see app/vision/localize.py). */
+function stageAdvice(stages) {
+  const bad = (stages || []).find((st) => !st.ok);
+  if (!bad) return DEFAULT_ADVICE;
+  return bad.name === "table markers" ? MARKER_ADVICE : PART_ADVICE;
 }
 
 function fail(text) { say($("status"), text, "bad"); }
@@ -84,7 +90,7 @@ async function start(grab, file) {
     $("step").textContent = "Nothing was started.";
     $("setup-id").textContent = "";
     setProgress(100, "failed");
-    fail(explain(e.message));
+    fail(explain(e.message, CODE_ADVICE[e.code]));
   }
 }
 
@@ -184,7 +190,7 @@ function render(s) {
   $("machine").value = String(s.machine_id);
   if (!located) {
     $("step").textContent = "The setup could not be located.";
-    fail(explain(s.reason));
+    fail(explain(s.reason, stageAdvice(s.stages)));
     showViewer(null);
     fillOffset(null, null);
     $("uncertainty").textContent = "";
@@ -311,10 +317,6 @@ async function readController(s, off, wp, force = false) {
 
 function setActions(enabled) {
   for (const b of document.querySelectorAll("[data-nudge], #refine, #confirm")) b.disabled = !enabled;
-  if (!state.refinePath) {
-    $("refine").disabled = true;
-    $("refine").title = "Refining from an adjusted position is not available in this version of the service yet.";
-  }
 }
 
 function showConfirmation(s) {
@@ -327,15 +329,8 @@ function showConfirmation(s) {
     status.className = "pass";
     wrap.classList.remove("hidden");
     const b = $("export");
-    if (state.exportPath) {
-      b.disabled = false;
-      b.title = "Write this offset into the controller";
-    } else {
-      b.disabled = true;
-      const why = "Export to the controller is not available in this version of the service yet; type the values in by hand.";
-      b.title = why;
-      wrap.title = why;
-    }
+    b.disabled = false;
+    b.title = "Write this offset into the controller";
   } else {
     wrap.classList.add("hidden");
     status.className = "muted";
@@ -361,8 +356,7 @@ async function act(fn, busyText) {
     render(out && out.id ? out : await api(`/api/v1/setups/${s.id}`));
   } catch (e) {
     setActions(true);
-    if (e.status === 404 || e.status === 405) fail("This function is not available in this version of the service.");
-    else fail(e.message);
+    fail(e.message);
   }
 }
 
@@ -376,13 +370,16 @@ function nudge(button) {
 
 function refine() {
   const index = workpieceIndex(state.setup.result);
-  act((s) => postJSON(state.refinePath.replace("{setup_id}", s.id), { object_index: index }),
+  act((s) => postJSON(`/api/v1/setups/${s.id}/refine`, { object_index: index }),
       "Refining the fit from the current position…");
 }
 
 function confirmResult() {  // the service records the signed-in operator as "who"
   act((s) => postJSON(`/api/v1/setups/${s.id}/confirm`, { result_revision: s.result_revision }), "Recording the confirmation…");
 }
+
+// the export's refusals that the operator may overrule after comparing the values (app/services/export.py)
+const NEEDS_ACKNOWLEDGEMENT = new Set(["change_needs_acknowledgement", "first_export_needs_acknowledgement"]);
 
 async function exportOffset(acknowledge = false) {
   const s = state.setup;
@@ -391,7 +388,7 @@ async function exportOffset(acknowledge = false) {
   say($("status"), "Writing the offset into the controller and reading it back…", "info");
   const status = $("export-status");
   try {
-    const out = await postJSON(state.exportPath.replace("{setup_id}", s.id), { slot: $("slot").value, acknowledge_change: acknowledge });
+    const out = await postJSON(`/api/v1/setups/${s.id}/export`, { slot: $("slot").value, acknowledge_change: acknowledge });
     const w = out.read_back || out.written || {};
     const vals = ["x_mm", "y_mm", "z_mm", "c_deg"].filter((k) => k in w).map((k) => `${k[0].toUpperCase()} ${fmt(w[k], 3)}`).join(", ");
     if (out.status === "written") {
@@ -408,19 +405,12 @@ async function exportOffset(acknowledge = false) {
     status.textContent = `Not written: ${e.message}`;
     status.className = "fail";
     fail(`Not written: ${e.message}`);
-    if (e.status === 409 && /limit|change/i.test(e.message)) $("export-anyway").classList.remove("hidden");
+    if (NEEDS_ACKNOWLEDGEMENT.has(e.code)) $("export-anyway").classList.remove("hidden");
   } finally {
     $("export").disabled = false;
   }
 }
 
-async function detectExport() {
-  try {
-    const spec = await api("/openapi.json");
-    state.exportPath = Object.keys(spec.paths).find((p) => /\/setups\/\{setup_id\}\/export$/.test(p)) || null;
-    state.refinePath = Object.keys(spec.paths).find((p) => /\/setups\/\{setup_id\}\/refine$/.test(p)) || null;
-  } catch (e) { state.exportPath = null; state.refinePath = null; }
-}
 
 // Follow changes made elsewhere (gizmo in the 3D view, another browser) while a result is shown.
 function startPolling() {
@@ -451,7 +441,7 @@ document.addEventListener("DOMContentLoaded", async () => {
   setBusy(true);   // no capture or upload before the machines are listed ("Choose the machine first")
   try {
     const machineId = qs("machine") || localStorage.getItem("setupcam.machine");
-    [state.machines] = await Promise.all([fillMachines($("machine"), machineId), loadParts(), detectExport()]);
+    [state.machines] = await Promise.all([fillMachines($("machine"), machineId), loadParts()]);
     $("slot").addEventListener("change", () => {
       const s = state.setup;
       if (s && s.status === "located") readController(s, s.result.offset, s.result.objects[workpieceIndex(s.result)], true);

@@ -1,7 +1,6 @@
 // Users and API keys (admin only): add, disable/enable, reset a password; create and revoke keys.
 // Passwords and key secrets are shown once, right after they are made.
 "use strict";
-const $ = (id) => document.getElementById(id);
 
 function showOnce(box, text, secret) {
   box.replaceChildren(document.createTextNode(text + " "), el("span", { class: "secret", "data-testid": "secret-once", text: secret }),

@@ -3,8 +3,11 @@ navigation, static files confined to frontend/static, the 3D view only for signe
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
+from app.api.routes import pages as pages_module
 from tests.support.live_server import live_server
 
 pytestmark = pytest.mark.integration
@@ -84,3 +87,44 @@ def test_probing_page_has_the_automation_ids(service):
         assert f'data-testid="{tid}"' in html, tid
     with service.client(None) as c:
         assert 'data-testid="probing-link"' in c.get("/setup").text   # the setup page leads there
+
+
+SCRIPT = re.compile(r"<script\b([^>]*)>(.*?)</script>", re.S | re.I)
+
+
+def test_every_page_runs_only_scripts_from_static_starting_with_common_js(service):
+    """One style (issue 15, item 6): no inline page script, common.js first, then the page's own file
+    from /static (which must exist); each with the answer's CSP nonce."""
+    with service.client(None) as c:
+        for name in pages_module.PAGES:
+            r = c.get(f"/{name}")
+            nonce = re.search(r"'nonce-([^']+)'", r.headers["content-security-policy"]).group(1)
+            scripts = SCRIPT.findall(r.text)
+            srcs = []
+            for attrs, body in scripts:
+                assert not body.strip(), f"/{name} has an inline script: {body.strip()[:80]}"
+                assert f'nonce="{nonce}"' in attrs, f"/{name}: a script without the nonce"
+                src = re.search(r'src="([^"]+)"', attrs)
+                assert src and src.group(1).startswith("/static/"), f"/{name}: script {attrs}"
+                srcs.append(src.group(1))
+            assert srcs[0] == "/static/common.js", (name, srcs)
+            for src in srcs:
+                assert c.get(src).status_code == 200, (name, src)
+
+
+def test_page_scripts_use_the_common_helpers_and_ask_no_openapi():
+    """The helpers of common.js are not declared again, and no page detects features through
+    /openapi.json (the API documentation page is the one reader of the spec)."""
+    static = pages_module.STATIC_DIR
+    common = (static / "common.js").read_text(encoding="utf-8")
+    helpers = re.findall(r"^(?:async )?function (\w+)\(", common, re.M) + ["\\$"]
+    assert {"api", "say", "fmt", "el"} <= set(helpers)
+    for js in sorted(static.glob("*.js")):
+        if js.name == "common.js":
+            continue
+        text = js.read_text(encoding="utf-8")
+        for h in helpers:
+            again = re.search(rf"^\s*(?:(?:async )?function {h}\(|(?:const|let|var) {h} =)", text, re.M)
+            assert again is None, f"{js.name} declares {h.lstrip(chr(92))} again; use the one in common.js"
+        if js.name != "api-docs.js":
+            assert "openapi.json" not in text, f"{js.name} asks /openapi.json"

@@ -6,43 +6,12 @@ from __future__ import annotations
 import pytest
 from sqlmodel import Session, select
 
-from app.machine import ControllerError, NoOffsetYet, WorkOffset
+from app.machine import ControllerError, WorkOffset
 from app.services.controller_write import check_slot, guarded_write, travel_reasons, verify
 from app.services.errors import Invalid, Unavailable
 from app.store.db import make_engine, migrate
 from app.store.models import AuditEntry
-
-
-class FakeController:
-    """A controller in memory; ``journal`` lists the calls, ``fail`` makes one call raise."""
-
-    rounding_mm, rounding_deg, describe = 0.001, 0.001, "fake controller"
-
-    def __init__(self, slots=None, fail: dict | None = None, drift_mm: float = 0.0):
-        self.slots = dict(slots or {})
-        self.fail = dict(fail or {})
-        self.drift_mm = drift_mm
-        self.journal: list[str] = []
-
-    def _maybe_fail(self, what: str) -> None:
-        exc = self.fail.get(what)
-        if exc is not None:
-            raise exc
-
-    def read_offset(self, slot: str) -> WorkOffset:
-        self.journal.append(f"read {slot}")
-        self._maybe_fail("read")
-        if slot not in self.slots:
-            raise NoOffsetYet(f"fake controller holds no {slot} yet")
-        return self.slots[slot]
-
-    def write_offset(self, slot: str, offset: WorkOffset) -> None:
-        self.journal.append(f"write {slot}")
-        self.slots[slot] = WorkOffset(offset.x_mm + self.drift_mm, offset.y_mm, offset.z_mm, offset.c_deg)
-        self._maybe_fail("write")  # after storing: the write arrived, its answer was lost
-
-    def close(self) -> None:
-        self.journal.append("close")
+from tests.support.fake_controller import FakeController
 
 
 @pytest.fixture

@@ -5,10 +5,11 @@ from __future__ import annotations
 import logging
 from datetime import datetime
 
-from fastapi import APIRouter, HTTPException, Request, Response, status
+from fastapi import APIRouter, Request, Response, status
 from pydantic import BaseModel, Field
 
 from app.api.deps import SESSION_COOKIE, AdminPrincipal, CurrentPrincipal, SessionDep, SettingsDep
+from app.api.problems import Refused
 from app.services import access
 from app.services.audit import audit
 
@@ -112,15 +113,15 @@ def login(request: Request, session: SessionDep, settings: SettingsDep, body: Lo
         log.warning("sign-in throttled", extra={"user": body.name[:100], "address": address, "wait_s": round(wait)})
         audit(session, body.name[:100] or "?", "auth.login_throttled", address=address, wait_s=round(wait))
         session.commit()
-        raise HTTPException(429, f"too many failed sign-ins for this name or from this address; try again in "
-                                 f"{wait:.0f} s", headers={"Retry-After": str(max(1, round(wait)))})
+        raise Refused(429, f"too many failed sign-ins for this name or from this address; try again in "
+                           f"{wait:.0f} s", "too_many_sign_ins", headers={"Retry-After": str(max(1, round(wait)))})
     found = access.login(session, body.name, body.password)
     if found is None:
         throttle.failed(*keys)
         log.warning("sign-in failed", extra={"user": body.name[:100], "address": address})
         audit(session, body.name[:100] or "?", "auth.login_failed", address=address)
         session.commit()  # the refusal below must not roll the audit entry back
-        raise HTTPException(401, "wrong name or password")
+        raise Refused(401, "wrong name or password", "wrong_password")
     throttle.succeeded(keys[0])
     user, token, expires = found
     audit(session, user.name, "auth.login", address=address)
