@@ -83,14 +83,14 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
     if not fits:
         return fail("not_found", f"{model.name} not found: no start matched any image edges")
     t = time.perf_counter()                                                # stage 4: verification
-    best, fits, near = _choose(ctx, fits)
+    best, fits, sym_scores = _choose(ctx, fits)
     rivals = _rivals(ctx, best, fits)
     refusal, distinct_drop = _refusal(ctx, best, rivals)
     timings["verify"] = (time.perf_counter() - t) * 1e3
     if refusal is not None:
         return fail(*refusal, best.score, [{"T_table_obj": f.T.tolist(), "score": round(f.score, 4)} for f in fits])
     contact = _contact_fit(ctx, best, fits)                                # 6 DoF with the contact prior
-    pose = _result(ctx, contact, rivals, near, distinct_drop)
+    pose = _result(ctx, contact, rivals, sym_scores, distinct_drop)
     timings["verify"] = (time.perf_counter() - t) * 1e3
     timings["total"] = (time.perf_counter() - t_all) * 1e3
     return replace(pose, timings_ms=dict(timings))
