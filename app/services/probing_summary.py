@@ -9,8 +9,6 @@ table frame (mm) unless a key says ``_prog`` (the program frame: the slot the pr
 
 from __future__ import annotations
 
-from urllib.parse import urlencode
-
 import numpy as np
 from shapely.geometry import MultiPoint
 from sqlmodel import Session, select
@@ -97,5 +95,5 @@ def plan_summary(session: Session, files: FileStore, settings, setup_id: int, *,
         "travel_mm": [_round(p.waypoints, 2) for p in prog.travel],
         "table_xy_mm": list(table_xy(session, files, machine)),
         "program_lines": len(lines),
-        "program_url": f"/api/v1/setups/{s.id}/probing-program?{urlencode(params)}",
+        "program_query": params,     # the program endpoint's parameters; the web layer makes the URL
     }

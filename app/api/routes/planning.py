@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from typing import Any
+from urllib.parse import urlencode
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from pydantic import BaseModel, Field
@@ -66,8 +67,11 @@ def probing_plan(request: Request, session: SessionDep, files: FilesDep, setting
     from app.services import probing_summary
 
     _closed_parameters(request, tuple(p for p in svc.PROGRAM_PARAMS if p != "dry_run"))
-    return probing_summary.plan_summary(session, files, settings, setup_id, wcs=wcs, dialect=dialect,
-                                        clearance_mm=clearance_mm, no_go=no_go)
+    out = probing_summary.plan_summary(session, files, settings, setup_id, wcs=wcs, dialect=dialect,
+                                       clearance_mm=clearance_mm, no_go=no_go)
+    query = urlencode(out.pop("program_query"))
+    out["program_url"] = f"{request.app.url_path_for('probing_program', setup_id=str(setup_id))}?{query}"
+    return out
 
 
 @router.get("/setups/{setup_id}/probing-program", response_class=Response,

@@ -63,10 +63,9 @@ class LocateOptions:
 
     def with_(self, **changes) -> LocateOptions:
         """A copy with ``changes``; an unknown name is a ``TypeError`` that names the known ones."""
-        known = {f.name for f in fields(self)}
-        unknown = sorted(set(changes) - known)
+        unknown = sorted(set(changes) - OPTION_NAMES)
         if unknown:
-            raise TypeError(f"unknown locate option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+            raise TypeError(f"unknown locate option(s) {', '.join(unknown)}; known: {', '.join(sorted(OPTION_NAMES))}")
         if "height_offsets_mm" in changes:
             changes["height_offsets_mm"] = tuple(changes["height_offsets_mm"])
         if changes.get("resting_states") is not None:

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from app.geometry.model_edges import PreparedModel, project_points_px
-from app.geometry.transforms import transform_points
+from app.geometry.transforms import inv, transform_points
 from app.vision.object_pose.pose_params import perturb
 
 
@@ -149,7 +149,7 @@ def unknown_height_covariance(T_table_obj: np.ndarray, model: PreparedModel, T_c
     that line, so its x and y are unknown along the line's horizontal direction as well (a part on
     parallels fitted flat onto the seat below sits 20 mm lower *and* 14 mm nearer the camera). The
     flat fit held the height fixed and so stated x and y as if it were known."""
-    C = np.linalg.inv(T_cam_table)[:3, 3]
+    C = inv(T_cam_table)[:3, 3]
     c = transform_points(T_table_obj, model.center_obj[None])[0]
     d = c - C
     slide = np.array([d[0] / d[2], d[1] / d[2], 1.0]) if abs(d[2]) > 1e-6 else np.array([0.0, 0.0, 1.0])
