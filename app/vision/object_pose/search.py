@@ -110,6 +110,34 @@ def _support_maps(rays, C, z: float, extent_xy, b: float, n_channels: int, tau_b
     return sup
 
 
+def _spread_picks(crease: np.ndarray, max_n: int) -> np.ndarray:
+    """At most ``max_n`` indices spread evenly over the samples, sorted, with at most a quarter of
+    them on smooth edges when there are creases enough: a bore or a fillet is a dense bundle of
+    smooth edges of which one or two show (as silhouettes), and evenly spaced samples would spend
+    most of a template on them."""
+    if len(crease) <= max_n:
+        return np.arange(len(crease))
+    n_crease_all = int(crease.sum())
+    n_smooth = min(len(crease) - n_crease_all, max_n // 4) if n_crease_all >= max_n // 2 else \
+        max_n - min(n_crease_all, max_n)
+    pick = []
+    for mask, n in ((crease, max_n - n_smooth), (~crease, n_smooth)):
+        idx = np.nonzero(mask)[0]
+        if n > 0 and len(idx):
+            pick.append(idx[np.linspace(0, len(idx) - 1, min(n, len(idx))).astype(np.int64)])
+    return np.sort(np.concatenate(pick))
+
+
+def edge_faces_of(model: PreparedModel, T_rest_obj: np.ndarray, sel: np.ndarray):
+    """What the image scorer needs to tell which template samples can show: the normals (resting
+    frame) of the faces either side of each sample's edge (a boundary edge repeats its one face),
+    and which edges are smooth (a bore's or a fillet's facets: they show only as silhouettes)."""
+    N = model.mesh.face_normals @ T_rest_obj[:3, :3].T
+    ef_s = model.edge_faces[model.sample_edge[sel]]
+    return (N[ef_s[:, 0]], N[np.where(ef_s[:, 1] >= 0, ef_s[:, 1], ef_s[:, 0])],
+            ~model.edge_feature[model.sample_edge[sel]])
+
+
 def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, extent_xy,
                   n_peaks: int, *, px_mm: float, image_score, max_template: int = 400, n_coarse: int = 40,
                   cache: dict | None = None, image_score_wide=None, image_score_mid=None) -> list[Hyp]:
@@ -148,10 +176,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
                   abs((rs.T_rest_obj[:3, :3] @ model.continuous_axis_obj)[2]) > 0.999)
 
     def face_normals(sel):
-        """Normals (resting frame) of the faces either side of the samples' edges; a boundary edge
-        repeats its one face."""
-        ef_s = model.edge_faces[model.sample_edge[sel]]
-        return N[ef_s[:, 0]], N[np.where(ef_s[:, 1] >= 0, ef_s[:, 1], ef_s[:, 0])]
+        return edge_faces_of(model, rs.T_rest_obj, sel)
 
     def template(spacing_mm, max_n, only=None):
         step = max(1, int(round(spacing_mm / model.sample_step_mm)))
@@ -159,7 +184,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         sel = cand[keep][::step]
         w = wts_all[keep][::step]
         if len(sel) > max_n:
-            k = np.linspace(0, len(sel) - 1, max_n).astype(np.int64)
+            k = _spread_picks(crease[keep][::step], max_n)
             sel, w = sel[k], w[k]
         return P[sel, :2], np.arctan2(D[sel, 1], D[sel, 0]), P[sel, 2] + height_mm, w, sel
 
@@ -272,7 +297,9 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
 def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, max_angle_deg: float = 20.0):
     """Score function for many planar poses at once: each pose (x, y, theta) moves template points
     ``P`` (M, 3, resting frame) with directions ``D``; the score is the weighted share of projected
-    points within ``tau_px`` of an image edge of compatible direction (soft: 1 - d / tau)."""
+    points within ``tau_px`` of an image edge of compatible direction (soft: 1 - d / tau). With
+    ``normals`` (from :func:`edge_faces_of`) only the samples that can show at that pose count, by
+    the rule of :func:`app.geometry.model_edges.visible_edge_samples` without its z-buffer."""
     R = T_cam_table[:3, :3]
     t = T_cam_table[:3, 3]
     cos_tol = np.cos(np.radians(max_angle_deg))
@@ -286,14 +313,18 @@ def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, ma
                       np.broadcast_to(P[None, :, 2], (len(hx), len(P)))], axis=-1).reshape(-1, 3)
         vis = None
         if normals is not None:
-            # an edge shows only if one of its faces turns towards the camera (back edges of the
-            # part never do; counting them drowns the true pose among clutter that fits by chance)
+            # a crease shows only if one of its faces turns towards the camera (back edges of the
+            # part never do; counting them drowns the true pose among clutter that fits by chance);
+            # a smooth edge (a bore's or a fillet's facets) only where one face turns away: a silhouette
+            N0, N1, smooth = normals
             V = (C[None, :] - X).reshape(len(hx), len(P), 3)
-            vis = np.zeros((len(hx), len(P)), bool)
-            for Nk in normals:
+            facing = []
+            for Nk in (N0, N1):
                 nx = c * Nk[None, :, 0] - s * Nk[None, :, 1]
                 ny = s * Nk[None, :, 0] + c * Nk[None, :, 1]
-                vis |= (nx * V[..., 0] + ny * V[..., 1] + Nk[None, :, 2] * V[..., 2]) > 0
+                facing.append((nx * V[..., 0] + ny * V[..., 1] + Nk[None, :, 2] * V[..., 2]) > 0)
+            vis = np.where(smooth[None, :], facing[0] ^ facing[1], facing[0] | facing[1])
+            w_floor = 0.5 * float(w[~smooth].sum()) if (~smooth).any() else 0.5 * float(w.sum())
         Dt = np.stack([c * D[None, :, 0] - s * D[None, :, 1], s * D[None, :, 0] + c * D[None, :, 1],
                        np.broadcast_to(D[None, :, 2], (len(hx), len(P)))], axis=-1).reshape(-1, 3)
         Xc = X @ R.T + t
@@ -312,9 +343,9 @@ def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, ma
         val = (np.clip(1.0 - d / tau_px, 0.0, 1.0) * compat * ok).reshape(len(hx), len(P))
         if vis is None:
             return val @ w / max(float(w.sum()), 1e-9)
-        # share of the visible weight, but never of less than half the template (a pose that hides
-        # most of the part would otherwise score on its few edges left)
-        return (val * vis) @ w / np.maximum(vis @ w, 0.5 * float(w.sum()) + 1e-9)
+        # share of the visible weight, but never of less than half the creases' weight (a pose that
+        # hides most of the part would otherwise score on its few edges left)
+        return (val * vis) @ w / np.maximum(vis @ w, w_floor + 1e-9)
 
     return score
 
@@ -447,27 +478,27 @@ def turned_over(model: PreparedModel, T_table_obj: np.ndarray) -> list[np.ndarra
 
 def _start_template(model: PreparedModel, state: int, T0: np.ndarray):
     """The start as a turn about the table normal and a shift (M, theta0) and a template of at most
-    150 model edge samples in the resting frame at the start's height (P, D, weights); whether the
-    part is round about the table normal."""
+    150 model edge samples in the resting frame at the start's height (P, D, weights, and what tells
+    which of them show: :func:`edge_faces_of`); whether the part is round about the table normal."""
     rs = model.resting_states[state]
     M = T0 @ inv(rs.T_rest_obj)
     th0 = float(np.arctan2(M[1, 0], M[0, 0]))
     P = transform_points(rs.T_rest_obj, model.samples_obj) + np.array([0.0, 0.0, M[2, 3]])
     D = model.sample_dir_obj @ rs.T_rest_obj[:3, :3].T
-    sel = np.linspace(0, len(P) - 1, min(len(P), 150)).astype(np.int64)
+    sel = _spread_picks(model.edge_feature[model.sample_edge], 150)
     round_part = (model.continuous_axis_obj is not None and
                   abs((rs.T_rest_obj[:3, :3] @ model.continuous_axis_obj)[2]) > 0.999)
-    return M, th0, P[sel], D[sel], np.ones(len(sel)), round_part
+    return M, th0, P[sel], D[sel], np.ones(len(sel)), edge_faces_of(model, rs.T_rest_obj, sel), round_part
 
 
 def _grid_scores(scorer, x0: float, y0: float, th0: float, capture_mm: float, step_mm: float,
-                 capture_rad: float, step_rad: float, P, D, w, round_part: bool):
+                 capture_rad: float, step_rad: float, P, D, w, faces, round_part: bool):
     """Scores of every (x, y, theta) on a grid about (x0, y0, th0): arrays hx, hy, ht, score."""
     g = np.arange(-capture_mm, capture_mm + 1e-9, step_mm)
     gt = np.array([0.0]) if round_part else np.arange(-capture_rad, capture_rad + 1e-9, step_rad)
     DX, DY, DT = np.meshgrid(g, g, gt, indexing="ij")
     hx, hy, ht = x0 + DX.ravel(), y0 + DY.ravel(), th0 + DT.ravel()
-    sc = np.concatenate([scorer(hx[i:i + 2000], hy[i:i + 2000], ht[i:i + 2000], P, D, w)
+    sc = np.concatenate([scorer(hx[i:i + 2000], hy[i:i + 2000], ht[i:i + 2000], P, D, w, normals=faces)
                          for i in range(0, len(hx), 2000)])
     return hx, hy, ht, sc
 
@@ -503,11 +534,11 @@ def starts_from_poses(model: PreparedModel, start_poses, T_cam_table, K, dist, e
     sub_coarse = sample_subset(model, px_per_mm, 4.0, 400)
     hyps: list[Hyp] = []
     for state, T0 in starts:
-        M, th0, P, D, w, round_part = _start_template(model, state, T0)
+        M, th0, P, D, w, faces, round_part = _start_template(model, state, T0)
         step = 2.5 / px_per_mm                 # within the scorer's reach of 3 px
         dth = np.radians(min(2.0, np.degrees(2.5 / (px_per_mm * max(0.5 * model.diameter_mm, 1.0)))))
         hx, hy, ht, sc = _grid_scores(scorer, M[0, 3], M[1, 3], th0, capture_mm, max(step, capture_mm / 25),
-                                      np.radians(capture_deg), dth, P, D, w, round_part)
+                                      np.radians(capture_deg), dth, P, D, w, faces, round_part)
         order = np.argsort(-sc)
         keep = _nms(hx[order], hy[order], ht[order], max(0.2 * model.diameter_mm, 3 * step),
                     np.radians(15.0), n_peaks)
@@ -532,7 +563,7 @@ def settle_start(model: PreparedModel, h: Hyp, T_cam_table, K, dist, eimg: EdgeI
     state, T0 = h.state, h.T_table_obj
     z = float(transform_points(T_cam_table, T0[:3, 3][None])[0, 2])
     px_per_mm = K[0, 0] / max(z, 1.0)
-    M, th0, P, D, w, round_part = _start_template(model, state, T0)
+    M, th0, P, D, w, faces, round_part = _start_template(model, state, T0)
     fine = 2.5 / px_per_mm
     dth_fine = np.radians(min(2.0, np.degrees(2.5 / (px_per_mm * max(0.5 * model.diameter_mm, 1.0)))))
     x, y, th = M[0, 3], M[1, 3], th0
@@ -540,7 +571,7 @@ def settle_start(model: PreparedModel, h: Hyp, T_cam_table, K, dist, eimg: EdgeI
     for _ in range(2):
         step, dth = max(fine, cap / n_steps), max(dth_fine, cap_t / n_steps)
         scorer = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(step * px_per_mm, 3.0, 12.0)))
-        hx, hy, ht, sc = _grid_scores(scorer, x, y, th, cap, step, cap_t, dth, P, D, w, round_part)
+        hx, hy, ht, sc = _grid_scores(scorer, x, y, th, cap, step, cap_t, dth, P, D, w, faces, round_part)
         i = int(np.argmax(sc))
         x, y, th = hx[i], hy[i], ht[i]
         cap, cap_t = step, dth
