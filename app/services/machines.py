@@ -48,7 +48,7 @@ LIMIT_BOUNDS: dict[str, dict[str, float]] = {
     "max_offset_change_mm": {"gt": 0.0, "le": 1000.0},
     "max_offset_change_deg": {"gt": 0.0, "le": 180.0},
 }
-LIMIT_UNITS = {"max_tilt_deg": "°", "max_offset_change_mm": "mm", "max_offset_change_deg": "°"}
+LIMIT_UNITS = {"max_tilt_deg": "°", "max_offset_change_mm": " mm", "max_offset_change_deg": "°"}
 
 
 def setting_name(limit: str) -> str:
@@ -80,11 +80,14 @@ def validate_limit(name: str, value: Any) -> float | None:
     if value is None:
         return None
     b, unit = LIMIT_BOUNDS[name], LIMIT_UNITS[name]
-    v = float(value)
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan  # refused below with the same sentence
     low_ok = v >= b["ge"] if "ge" in b else v > b["gt"]
     if not (math.isfinite(v) and low_ok and v <= b["le"]):
         low = f">= {b['ge']:g}" if "ge" in b else f"> {b['gt']:g}"
-        raise Invalid(f"{name}: must be a number {low} and <= {b['le']:g} {unit} (empty: use "
+        raise Invalid(f"{name}: must be a number {low} and <= {b['le']:g}{unit} (empty: use "
                       f"{setting_name(name)}), got {value}")
     return v
 

@@ -65,7 +65,8 @@ def test_the_machine_limit_wins_and_each_source_is_named(tmp_path):
 
 
 @pytest.mark.parametrize("name, value", [("max_tilt_deg", float("nan")), ("max_tilt_deg", 10.5),
-                                         ("max_offset_change_mm", 0.0), ("max_offset_change_deg", float("inf"))])
+                                         ("max_offset_change_mm", 0.0), ("max_offset_change_deg", float("inf")),
+                                         ("max_offset_change_deg", "two")])
 def test_limits_given_past_the_api_are_checked_too(name, value):
     with pytest.raises(Invalid, match=f"{name}: must be a number"):
         validate_limit(name, value)
