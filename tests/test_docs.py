@@ -46,3 +46,12 @@ def test_links_stay_inside_the_repository(doc):
             resolved = (doc.parent / path).resolve()
             assert resolved.is_relative_to(REPO), f"{doc.name} links outside the repository: {target}"
             assert resolved.exists(), f"{doc.name} links to a missing file: {target}"
+
+
+@pytest.mark.parametrize("limit, setting", [("max_tilt_deg", "SETUPCAM_MAX_TILT_DEG"),
+                                            ("max_offset_change_mm", "SETUPCAM_MAX_OFFSET_CHANGE_MM"),
+                                            ("max_offset_change_deg", "SETUPCAM_MAX_OFFSET_CHANGE_DEG")])
+def test_readme_says_a_machine_limit_overrides_its_setting(limit, setting):
+    row = next(line for line in README.splitlines() if line.startswith(f"| `{setting}`"))
+    assert f"a machine's own `{limit}` overrides it" in row, row
+    assert "**Per-machine limits.**" in README and "/api/v1/machines/default-limits" in README

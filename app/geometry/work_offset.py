@@ -52,6 +52,7 @@ def work_offset_from_poses(
     T_obj_datum: np.ndarray,
     *,
     max_tilt_deg: float,
+    max_tilt_from: str = "",
 ) -> OffsetResult:
     """Work offset of the datum in machine coordinates.
 
@@ -65,6 +66,8 @@ def work_offset_from_poses(
         The NC program zero defined on the workpiece model, mm.
     max_tilt_deg : float
         Largest residual tilt (angle between datum z and machine Z) a 3-axis offset may ignore.
+    max_tilt_from : str
+        Where that limit comes from, named in the refusal (e.g. "machine 'Mill 3'"); "" names nothing.
 
     Returns
     -------
@@ -88,18 +91,21 @@ def work_offset_from_poses(
     R = T[:3, :3]
     c = float(np.degrees(np.arctan2(R[1, 0], R[0, 0])))  # equals the Euler C; robust near B = ±90°
     tilt = tilt_deg(T)
-    reason = ""
-    if tilt > max_tilt_deg:
-        err_mm = 100.0 * np.sin(np.radians(min(tilt, 90.0)))
-        reason = (
-            f"residual tilt {tilt:.3f}° (A {a:+.3f}°, B {b:+.3f}°) exceeds the allowed {max_tilt_deg:.3f}°: "
-            f"a 3-axis work offset cannot hold it (≈{err_mm:.2f} mm error 100 mm from the datum); "
-            "check that the part sits flat on the table or vise, or use a tilted-plane (A/B) setup"
-        )
+    reason = tilt_reason(tilt, a, b, max_tilt_deg, max_tilt_from) if tilt > max_tilt_deg else ""
     return OffsetResult(
         x_mm=x, y_mm=y, z_mm=z, c_deg=c, a_deg=a, b_deg=b, tilt_deg=tilt,
         max_tilt_deg=float(max_tilt_deg), T_machine_datum=T, reason=reason,
     )
+
+
+def tilt_reason(tilt: float, a_deg: float, b_deg: float, max_tilt_deg: float, max_tilt_from: str = "") -> str:
+    """The sentence refusing a work offset whose residual ``tilt`` (degrees; ``a_deg``, ``b_deg`` about
+    machine X and Y) exceeds ``max_tilt_deg``; ``max_tilt_from`` says where that limit comes from."""
+    err_mm = 100.0 * np.sin(np.radians(min(tilt, 90.0)))
+    source = f" (limit from {max_tilt_from})" if max_tilt_from else ""
+    return (f"residual tilt {tilt:.3f}° (A {a_deg:+.3f}°, B {b_deg:+.3f}°) exceeds the allowed {max_tilt_deg:.3f}°"
+            f"{source}: a 3-axis work offset cannot hold it (≈{err_mm:.2f} mm error 100 mm from the datum); "
+            "check that the part sits flat on the table or vise, or use a tilted-plane (A/B) setup")
 
 
 def sheet_work_offset(T_machine_bed: np.ndarray, x_mm: float, y_mm: float, c_deg: float,

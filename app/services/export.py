@@ -15,12 +15,13 @@ from datetime import datetime, timezone
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, col, select
 
+from app.geometry.work_offset import tilt_reason
 from app.machine import ControllerError, NoOffsetYet, WorkOffset, make_controller
 from app.services.audit import audit, audit_apart
 from app.services.controller_write import (Verdict, check_slot, guarded_write, open_controller, travel_reasons,
                                            verify)
 from app.services.errors import Conflict, Invalid, NotFound, Unavailable
-from app.services.machines import get_machine
+from app.services.machines import Limit, get_machine, machine_limit
 from app.services.setups import get_setup, setup_result
 from app.store.db import session_scope
 from app.store.models import Export, Setup, utcnow
@@ -42,17 +43,24 @@ def require_confirmed(setup, use: str = "exported") -> None:
                        code="changed_after_confirmation")
 
 
-def plausibility_reasons(setup, machine) -> list[tuple[str, str]]:
+def plausibility_reasons(setup, machine, settings) -> list[tuple[str, str]]:
     """Every (reason code, sentence) why the setup's offset must not be used; empty when it may.
     Codes: no_workpiece, tilt (the offset is not usable, e.g. tilted beyond the tolerance),
-    uncertainty_fail, outside_travel."""
+    uncertainty_fail, outside_travel. The tilt is checked against the limit in force now (the machine's
+    own or the global one), not the one of when the setup was located: an admin's change applies at once."""
     result = setup_result(setup)
     off = result.offset
     if not off:
         return [("no_workpiece", f"setup {setup.id} has no workpiece offset (no workpiece located)")]
     reasons = []
-    if not off.get("ok", False):
-        reasons.append(("tilt", off.get("reason") or "offset not usable"))
+    if off.get("tilt_deg") is None:  # no tilt on record: the review's verdict is all there is
+        if not off.get("ok", False):
+            reasons.append(("tilt", off.get("reason") or "offset not usable"))
+    else:
+        limit = machine_limit(machine, settings, "max_tilt_deg")
+        if off["tilt_deg"] > limit.value:
+            reasons.append(("tilt", tilt_reason(off["tilt_deg"], off.get("a_deg", 0.0), off.get("b_deg", 0.0),
+                                                limit.value, limit.source)))
     wp = result.workpiece()  # the offset is this workpiece's datum (proposed_offset)
     if wp is not None and not wp.uncertainty_pass:
         reasons.append(("uncertainty_fail", f"uncertainty too large ({wp.uncertainty_reason or 'unknown'}); "
@@ -64,7 +72,7 @@ def plausibility_reasons(setup, machine) -> list[tuple[str, str]]:
 
 def plausibility(setup, machine, settings, use: str = "export") -> tuple[WorkOffset, dict]:
     """The offset to write, or Invalid with every reason it must not be used (code: the first reason's)."""
-    reasons = plausibility_reasons(setup, machine)
+    reasons = plausibility_reasons(setup, machine, settings)
     if reasons:
         raise Invalid(f"{use} refused: " + "; ".join(r for _, r in reasons), code=reasons[0][0])
     off = setup.result["offset"]
@@ -226,7 +234,8 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
             events.publish("offset.export_failed", {"setup_id": setup_id, "slot": slot, "reason": str(exc)})
 
         def target(before: WorkOffset | None, empty: str) -> WorkOffset:
-            why = change_reason(offset, before, empty, slot, settings)
+            why = change_reason(offset, before, empty, slot, machine_limit(machine, settings, "max_offset_change_mm"),
+                                machine_limit(machine, settings, "max_offset_change_deg"))
             if why and not acknowledge_change:
                 row.before = before.as_dict() if before is not None else None
                 _settle(session, row, "failed", f"refused, nothing written: {why}", actor, machine.id)
@@ -268,19 +277,22 @@ def _export(session: Session, settings, events, setup_id: int, *, slot: str, act
         controller.close()
 
 
-def change_reason(offset: WorkOffset, before: WorkOffset | None, empty: str, slot: str, settings) -> str:
+def change_reason(offset: WorkOffset, before: WorkOffset | None, empty: str, slot: str, max_mm: Limit,
+                  max_deg: Limit) -> str:
     """Why writing ``offset`` over ``before`` needs the operator's acknowledgement ("" when it does not):
-    the slot holds nothing yet (``empty``: the controller's sentence), or the change exceeds the limits."""
+    the slot holds nothing yet (``empty``: the controller's sentence), or the change exceeds ``max_mm``
+    (X/Y/Z) or ``max_deg`` (C), each the machine's own limit or the global one (the sentence names which)."""
     if before is None:
         # nothing to show side by side: the first write to a slot is acknowledged like a large change
         return (f"{empty}, so there is no current {slot} to compare the change with; check the new values "
                 "and export again with acknowledge_change=true")
     d_mm, d_deg = offset.difference(before)
-    if d_mm > settings.max_offset_change_mm or d_deg > settings.max_offset_change_deg:
-        return (f"the new {slot} differs from the controller's current one by {d_mm:.3f} mm / "
-                f"{d_deg:.3f}° (limits {settings.max_offset_change_mm} mm / "
-                f"{settings.max_offset_change_deg}°); compare them and export again with "
-                "acknowledge_change=true if this is intended")
+    over = [f"{d:.3f}{unit} is more than the {lim.value:g}{unit} allowed by {lim.source}"
+            for d, lim, unit in ((d_mm, max_mm, " mm"), (d_deg, max_deg, "°")) if d > lim.value]
+    if over:
+        return (f"the new {slot} differs from the controller's current one by {d_mm:.3f} mm / {d_deg:.3f}° "
+                f"({'; '.join(over)}); compare them and export again with acknowledge_change=true if this "
+                "is intended")
     return ""
 
 

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 from sqlmodel import Session, col, select
 
+from app.config import Settings
 from app.geometry.table_figure import table_figure_svg
 from app.geometry.table_frame import TableFrameError, table_frame_from_points
 from app.geometry.transforms import PoseError, check_pose
@@ -35,6 +37,59 @@ def validate_travel(travel: dict) -> dict:
             raise Invalid(f"travel_mm.{axis}: min {lo} must be below max {hi}")
         out[axis] = [lo, hi]
     return out
+
+
+# ------------------------------------------------------------------ limits: the machine's own or the global one
+#: the pydantic bounds of each per-machine limit: a tilt beyond 10° is no "small residual" a 3-axis offset may
+#: ignore (17 mm error 100 mm from the datum); a change limit must be positive (0 would refuse even a
+#: re-export of the same offset) and below 1 m / a half turn (above, it would never ask)
+LIMIT_BOUNDS: dict[str, dict[str, float]] = {
+    "max_tilt_deg": {"ge": 0.0, "le": 10.0},
+    "max_offset_change_mm": {"gt": 0.0, "le": 1000.0},
+    "max_offset_change_deg": {"gt": 0.0, "le": 180.0},
+}
+LIMIT_UNITS = {"max_tilt_deg": "°", "max_offset_change_mm": " mm", "max_offset_change_deg": "°"}
+
+
+def setting_name(limit: str) -> str:
+    """The environment variable of a global limit, e.g. SETUPCAM_MAX_TILT_DEG."""
+    return str(Settings.model_fields[limit].validation_alias)
+
+
+@dataclass(frozen=True)
+class Limit:
+    """A limit in force on a machine: ``value`` (mm or degrees, see LIMIT_UNITS) and ``source``, where it
+    comes from in words ("machine 'Mill 3'" or "the global setting SETUPCAM_MAX_TILT_DEG") for refusals."""
+
+    name: str
+    value: float
+    source: str
+
+
+def machine_limit(machine: Machine, settings: Settings, name: str) -> Limit:
+    """The machine's own ``name`` limit when it has one, else the global setting's."""
+    own = getattr(machine, name, None)
+    if own is not None:
+        return Limit(name, float(own), f"machine '{machine.name}'")
+    return Limit(name, float(getattr(settings, name)), f"the global setting {setting_name(name)}")
+
+
+def validate_limit(name: str, value: Any) -> float | None:
+    """A per-machine limit as stored (None: use the global setting); Invalid when it is not a finite
+    number within LIMIT_BOUNDS (the REST schema checks the same; this guards other callers)."""
+    if value is None:
+        return None
+    b, unit = LIMIT_BOUNDS[name], LIMIT_UNITS[name]
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan  # refused below with the same sentence
+    low_ok = v >= b["ge"] if "ge" in b else v > b["gt"]
+    if not (math.isfinite(v) and low_ok and v <= b["le"]):
+        low = f">= {b['ge']:g}" if "ge" in b else f"> {b['gt']:g}"
+        raise Invalid(f"{name}: must be a number {low} and <= {b['le']:g}{unit} (empty: use "
+                      f"{setting_name(name)}), got {value}")
+    return v
 
 
 #: controller settings the API never shows (answered as MASK)
@@ -86,11 +141,17 @@ def _pose(value: Any) -> list[list[float]]:
 
 
 def create_machine(session: Session, *, name: str, table_model_id: int, table_revision: int | None,
-                   T_machine_table: Any, travel_mm: dict, camera_ids: list[int], controller: dict | None) -> Machine:
+                   T_machine_table: Any, travel_mm: dict, camera_ids: list[int], controller: dict | None,
+                   **limits: float | None) -> Machine:
+    """A new machine; ``limits``: any of LIMIT_BOUNDS' names (None or left out: the global setting)."""
+    unknown = set(limits) - set(LIMIT_BOUNDS)
+    if unknown:
+        raise Invalid(f"unknown machine field(s): {', '.join(sorted(unknown))}")
     m = Machine(name=name, table_model_id=table_model_id,
                 table_revision=_check_table(session, table_model_id, table_revision),
                 T_machine_table=_pose(T_machine_table), travel_mm=validate_travel(travel_mm),
-                camera_ids=_check_cameras(session, camera_ids), controller=validate_controller(controller))
+                camera_ids=_check_cameras(session, camera_ids), controller=validate_controller(controller),
+                **{k: validate_limit(k, v) for k, v in limits.items()})
     session.add(m)
     session.flush()
     return m
@@ -126,6 +187,9 @@ def update_machine(session: Session, machine_id: int, changes: dict[str, Any]) -
         m.camera_ids = _check_cameras(session, changes["camera_ids"])
     if "controller" in changes:
         m.controller = validate_controller(keep_masked_secrets(changes["controller"], m.controller))
+    for name in LIMIT_BOUNDS:
+        if name in changes:  # null: back to the global setting
+            setattr(m, name, validate_limit(name, changes[name]))
     session.add(m)
     session.flush()
     return m

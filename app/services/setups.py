@@ -22,7 +22,7 @@ from app.services.audit import audit
 from app.services.cameras import read_image, get_camera, grab_frame, image_media_type
 from app.services.errors import Conflict, Invalid, NotFound
 from app.services.jobs import JobContext
-from app.services.machines import get_machine
+from app.services.machines import Limit, get_machine, machine_limit
 from app.services.setup_result import LocatedObject, SetupResult
 from app.store.db import session_scope
 from app.store.files import FileStore
@@ -220,15 +220,19 @@ def uncertainty_check(obj: LocatedObject, max_sigma_mm: float, max_sigma_deg: fl
     return (not worst, "; ".join(worst))
 
 
-def proposed_offset(result: SetupResult, T_machine_table: list, max_tilt_deg: float) -> dict | None:
-    """The work offset of the first located workpiece: X, Y, Z, C (+ tilt) in machine coordinates."""
+def proposed_offset(result: SetupResult, T_machine_table: list, max_tilt: Limit) -> dict | None:
+    """The work offset of the first located workpiece: X, Y, Z, C (+ tilt) in machine coordinates, checked
+    against ``max_tilt`` (the machine's own or the global limit; a refusal names which)."""
     wp = result.workpiece()
     if wp is None:
         return None
     T_machine_table = np.asarray(T_machine_table)
-    off = work_offset_from_poses(T_machine_table, wp.pose, wp.datum, max_tilt_deg=max_tilt_deg)
+    max_tilt_deg = max_tilt.value
+    off = work_offset_from_poses(T_machine_table, wp.pose, wp.datum, max_tilt_deg=max_tilt_deg,
+                                 max_tilt_from=max_tilt.source)
     out = {"object": wp.name, "x_mm": off.x_mm, "y_mm": off.y_mm, "z_mm": off.z_mm, "c_deg": off.c_deg,
            "a_deg": off.a_deg, "b_deg": off.b_deg, "tilt_deg": off.tilt_deg, "ok": off.ok, "reason": off.reason,
+           "max_tilt_deg": max_tilt_deg, "max_tilt_from": max_tilt.source,
            "T_machine_datum": off.T_machine_datum.tolist(), "datum_defined": bool(wp.T_obj_datum),
            "datum_ambiguous": wp.datum_ambiguous, "datum_note": wp.datum_note or "", "datum_choices": []}
     if wp.datum_undecided():  # the offset each equivalent pose would give: the operator picks one
@@ -283,7 +287,7 @@ def review(result: SetupResult, machine, settings) -> SetupResult:
         if o.probe_fail:  # probing showed the part does not sit as this pose says
             ok, why = False, f"probing: {o.probe_fail}"
         o.uncertainty_pass, o.uncertainty_reason = ok, why
-    result.offset = proposed_offset(result, machine.T_machine_table, settings.max_tilt_deg)
+    result.offset = proposed_offset(result, machine.T_machine_table, machine_limit(machine, settings, "max_tilt_deg"))
     return result
 
 

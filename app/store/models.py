@@ -115,6 +115,10 @@ class Machine(SQLModel, table=True):
     travel_mm: dict = json_field(nullable=False, description="{x: [min, max], y: [...], z: [...]} in mm")
     camera_ids: list[int] = json_field(default_factory=list, nullable=False)
     controller: dict | None = json_field()
+    # this machine's own limits; None: the global setting (SETUPCAM_MAX_TILT_DEG, _OFFSET_CHANGE_MM/_DEG)
+    max_tilt_deg: float | None = Field(default=None, description="Residual tilt a 3-axis offset may ignore, °")
+    max_offset_change_mm: float | None = Field(default=None, description="X/Y/Z change without acknowledgement, mm")
+    max_offset_change_deg: float | None = Field(default=None, description="C change without acknowledgement, °")
     created_at: datetime = Field(default_factory=utcnow)
     deleted_at: datetime | None = None
 

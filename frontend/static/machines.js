@@ -1,8 +1,31 @@
 // Machines: every signed-in user picks the machine here; admins add, change and delete machines
 // (operators see the same form read-only). Test connection reads the controller's offset in a slot.
 "use strict";
-const state = { machines: [], tables: [], cameras: [], editing: null, admin: false };
+const state = { machines: [], tables: [], cameras: [], editing: null, admin: false, defaults: {} };
 const AXES = ["x", "y", "z"];
+const LIMITS = { max_tilt_deg: ["tilt", "°"], max_offset_change_mm: ["X, Y, Z change", " mm"],
+                 max_offset_change_deg: ["C change", "°"] };
+const limitField = (name) => document.querySelector(`[data-limit="${name}"]`);
+
+/** The limit fields as the API takes them: a number, or null (empty: the global setting). */
+function limitsFromFields() {
+  const out = {};
+  for (const [name, [what]] of Object.entries(LIMITS)) {
+    const f = limitField(name);
+    if (f.validity.badInput) throw new Error(`The ${what} limit is not a number.`);
+    out[name] = f.value.trim() === "" ? null : Number(f.value);
+  }
+  return out;
+}
+
+/** Which limits are in force, and from where: this machine's fields or the global settings. */
+function showLimitsInForce() {
+  const parts = Object.entries(LIMITS).map(([name, [what, unit]]) => {
+    const own = limitField(name).value.trim(), d = state.defaults[name];
+    return own !== "" ? `${what} ${own}${unit} (this machine)` : d ? `${what} ${d.value}${unit} (${d.setting})` : "";
+  });
+  $("limits-note").textContent = "In force: " + parts.filter(Boolean).join(" · ");
+}
 
 /** T_machine_table from the X, Y, Z, C fields: a turn C about z, then the corner's position (mm). */
 function poseFromFields() {
@@ -92,6 +115,13 @@ function fillForm(m) {
   for (const a of AXES) {
     if (m) { $(`tr-${a}0`).value = m.travel_mm[a][0]; $(`tr-${a}1`).value = m.travel_mm[a][1]; }
   }
+  for (const name of Object.keys(LIMITS)) {
+    const f = limitField(name), d = state.defaults[name];
+    f.value = m && m[name] !== null && m[name] !== undefined ? m[name] : "";
+    f.placeholder = d ? String(d.value) : "";
+    f.title = d ? `Empty: the global setting ${d.setting} (${d.value})` : "";
+  }
+  showLimitsInForce();
   const ctl = (m && m.controller) || {};
   $("c-kind").value = ctl.kind || "";
   $("c-host").value = ctl.host || ""; $("c-port").value = ctl.port || 5007;
@@ -119,9 +149,11 @@ function drawCards() {
   for (const m of state.machines) {
     const cams = m.camera_ids.length ? `${m.camera_ids.length} camera(s)` : "no camera yet";
     const ctl = m.controller ? m.controller.kind : "no controller";
+    const own = Object.entries(LIMITS).filter(([n]) => m[n] !== null).map(([n, [what, unit]]) => `${what} ${m[n]}${unit}`);
     box.append(el("div", { class: "card", "data-testid": "machine-card" },
       el("h2", { text: m.name }),
-      el("p", { class: "muted", text: `Travel X ${m.travel_mm.x[0]}…${m.travel_mm.x[1]} mm · ${cams} · ${ctl}` }),
+      el("p", { class: "muted", text: `Travel X ${m.travel_mm.x[0]}…${m.travel_mm.x[1]} mm · ${cams} · ${ctl}`
+                                      + (own.length ? ` · own limits: ${own.join(", ")}` : "") }),
       el("div", { class: "row" },
         el("a", { class: "button primary", href: `/setup?machine=${m.id}`, text: "Set up here" }),
         el("a", { class: "button", href: `/history?machine=${m.id}`, text: "History" }),
@@ -131,13 +163,15 @@ function drawCards() {
 }
 
 async function load() {
-  const [machines, tables, cameras] = await Promise.all([
-    api("/api/v1/machines"), api("/api/v1/models?kind=table&limit=500"), api("/api/v1/cameras")]);
-  state.machines = machines; state.tables = tables.data; state.cameras = cameras;
+  const [machines, tables, cameras, defaults] = await Promise.all([
+    api("/api/v1/machines"), api("/api/v1/models?kind=table&limit=500"), api("/api/v1/cameras"),
+    api("/api/v1/machines/default-limits")]);
+  state.machines = machines; state.tables = tables.data; state.cameras = cameras; state.defaults = defaults;
   drawCards();
 }
 
 $("c-kind").addEventListener("change", showControllerFields);
+for (const name of Object.keys(LIMITS)) limitField(name).addEventListener("input", showLimitsInForce);
 $("from-points").addEventListener("click", async () => {
   try {
     const r = await workOutPose(true);
@@ -156,6 +190,7 @@ $("machine-form").addEventListener("submit", async (ev) => {
       T_machine_table: poseFromFields(),
       travel_mm: Object.fromEntries(AXES.map((a) => [a, [Number($(`tr-${a}0`).value), Number($(`tr-${a}1`).value)]])),
       controller: controllerFromFields(),
+      ...limitsFromFields(),
     };
     const m = await saveJSON("/api/v1/machines", state.editing && state.editing.id, body);
     await load();

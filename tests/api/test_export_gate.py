@@ -111,10 +111,11 @@ def test_a_change_beyond_the_limits_needs_an_acknowledgement(server, fakes):
     fake.slots["G55"] = WorkOffset(target.x_mm + 1, target.y_mm, target.z_mm, target.c_deg)  # < 5 mm, < 2°
     fake.slots["G56"] = WorkOffset(target.x_mm, target.y_mm, target.z_mm, target.c_deg + 3)  # > 2°
     sid = _confirmed(server, m)
-    for slot in ("G54", "G56"):
+    for slot, limit in (("G54", "5 mm allowed by the global setting SETUPCAM_MAX_OFFSET_CHANGE_MM"),
+                        ("G56", "2° allowed by the global setting SETUPCAM_MAX_OFFSET_CHANGE_DEG")):
         r = _export(server, sid, slot)
         _refused(r, 409, "change_needs_acknowledgement")
-        assert "acknowledge_change=true" in r.json()["detail"]
+        assert "acknowledge_change=true" in r.json()["detail"] and limit in r.json()["detail"], r.text
     assert fake.writes == []
     assert [(e["slot"], e["status"]) for e in _exports(server, sid)] == [("G54", "failed"), ("G56", "failed")]
     small = _export(server, sid, "G55")
@@ -150,6 +151,71 @@ def test_the_file_controller_first_export_and_its_retry(server, tmp_path):
     files = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
     again = _export(server, sid, "G58", acknowledge_change=True)
     assert again.json()["id"] == first.json()["id"] and {p.name: p.stat().st_mtime_ns for p in folder.iterdir()} == files
+
+
+def _set_limits(server, machine_id: int, **limits) -> None:
+    with server.client("admin") as c:
+        r = c.patch(f"/api/v1/machines/{machine_id}", json=limits)
+        assert r.status_code == 200, r.text
+
+
+def test_a_tight_machine_change_limit_asks_where_the_global_one_lets_it_pass(server, tmp_path):
+    """The file controller's G54 holds setup A's offset; setup B's is 1.2 mm and 0.4° away: within the global
+    5 mm / 2°, beyond this machine's own 0.5 mm, then its own 0.25°. Refused (nothing written, the reason
+    names the machine's limit) until the admin sets the limits back to the global ones."""
+    folder = tmp_path / "nc-tight"
+    folder.mkdir()
+    with server.client() as c:
+        m = make_machine(c, {"kind": "file", "dialect": "linuxcnc", "folder": str(folder)})
+    first = _confirmed(server, m, pose_from_xyz_euler(100, 50, 0, 0, 0, 10))
+    assert _export(server, first, "G54", acknowledge_change=True).json()["status"] == "written"
+    second = _confirmed(server, m, pose_from_xyz_euler(101.2, 50, 0, 0, 0, 10.4))
+
+    def files():
+        return {p.name: p.read_bytes() for p in folder.iterdir()}
+
+    before = files()
+    _set_limits(server, m["id"], max_offset_change_mm=0.5)
+    r = _export(server, second, "G54")
+    _refused(r, 409, "change_needs_acknowledgement")
+    assert "1.200 mm is more than the 0.5 mm allowed by machine 'test mill'" in r.json()["detail"], r.text
+    assert "° is more than" not in r.json()["detail"]   # C is within the global 2°
+    _set_limits(server, m["id"], max_offset_change_mm=None, max_offset_change_deg=0.25)
+    r = _export(server, second, "G54")
+    _refused(r, 409, "change_needs_acknowledgement")
+    assert "0.400° is more than the 0.25° allowed by machine 'test mill'" in r.json()["detail"], r.text
+    assert "mm is more than" not in r.json()["detail"]   # X/Y/Z back on the global 5 mm
+    assert files() == before   # nothing written while refused
+    _set_limits(server, m["id"], max_offset_change_deg=None)   # the global 5 mm / 2° again
+    r = _export(server, second, "G54")
+    assert r.status_code == 200 and r.json()["status"] == "written", r.text
+    assert r.json()["before"]["x_mm"] == pytest.approx(r.json()["written"]["x_mm"] - 1.2, abs=1e-3)
+    assert files() != before
+
+
+def test_the_machine_tilt_limit_is_the_one_in_force_at_the_gate(server, fakes):
+    """Tilt 0.3°: refused under the global 0.2° (the reason names the setting); allowed once the machine
+    has its own 0.5°, also for the setup located before (the gate checks the limit in force); refused
+    again, naming the machine, when the admin tightens it to 0.1°; and a setup located under the
+    machine's own limit shows it in its proposed offset."""
+    fake = FakeController()
+    m = _machine(server, fakes, "tilt-limit", fake)
+    tilted = pose_from_xyz_euler(100, 50, 0, 0.3, 0, 0)
+    sid = _confirmed(server, m, tilted)
+    r = _export(server, sid, acknowledge_change=True)
+    _refused(r, 422, "tilt")
+    assert "exceeds the allowed 0.200° (limit from the global setting SETUPCAM_MAX_TILT_DEG)" in r.json()["detail"]
+    _set_limits(server, m["id"], max_tilt_deg=0.5)
+    with server.client("operator") as c:
+        offset = c.get(f"/api/v1/setups/{_confirmed(server, m, tilted)}").json()["result"]["offset"]
+    assert offset["ok"] and offset["max_tilt_deg"] == 0.5 and offset["max_tilt_from"] == "machine 'test mill'"
+    r = _export(server, sid, "G55", acknowledge_change=True)
+    assert r.status_code == 200 and r.json()["status"] == "written", r.text
+    _set_limits(server, m["id"], max_tilt_deg=0.1)
+    r = _export(server, sid, "G56", acknowledge_change=True)
+    _refused(r, 422, "tilt")
+    assert "exceeds the allowed 0.100° (limit from machine 'test mill')" in r.json()["detail"]
+    assert fake.writes == ["write G55"]
 
 
 # --- idempotency ---------------------------------------------------------------------------------

@@ -99,3 +99,69 @@ def test_editing_a_machine_keeps_its_masked_controller_password(client, server, 
     client.patch(f"/api/v1/machines/{m['id']}", json={"controller": {"kind": "file", "dialect": "fanuc",
                                                                      "folder": "/tmp"}})
     assert "connect_password" not in stored()
+
+
+LIMITS = ("max_tilt_deg", "max_offset_change_mm", "max_offset_change_deg")
+
+
+def test_machine_limits_are_its_own_or_the_global_settings(client, server, table_id):
+    """A machine's max tilt and change limits: given on create, changed one at a time, null = back to the
+    global setting; the page's placeholders come from /machines/default-limits."""
+    defaults = client.get("/api/v1/machines/default-limits").json()
+    assert defaults == {
+        "max_tilt_deg": {"value": server.settings.max_tilt_deg, "setting": "SETUPCAM_MAX_TILT_DEG"},
+        "max_offset_change_mm": {"value": server.settings.max_offset_change_mm,
+                                 "setting": "SETUPCAM_MAX_OFFSET_CHANGE_MM"},
+        "max_offset_change_deg": {"value": server.settings.max_offset_change_deg,
+                                  "setting": "SETUPCAM_MAX_OFFSET_CHANGE_DEG"}}
+    plain = client.post("/api/v1/machines", json={"name": "global", "table_model_id": table_id, "travel_mm": TRAVEL})
+    assert plain.status_code == 201 and [plain.json()[k] for k in LIMITS] == [None, None, None], plain.text
+    r = client.post("/api/v1/machines", json={"name": "own", "table_model_id": table_id, "travel_mm": TRAVEL,
+                                              "max_tilt_deg": 0.5, "max_offset_change_mm": 1.5})
+    assert r.status_code == 201, r.text
+    mid = r.json()["id"]
+    assert [r.json()[k] for k in LIMITS] == [0.5, 1.5, None]
+    r = client.patch(f"/api/v1/machines/{mid}", json={"max_offset_change_deg": 0.25})
+    assert r.status_code == 200 and [r.json()[k] for k in LIMITS] == [0.5, 1.5, 0.25], r.text
+    r = client.patch(f"/api/v1/machines/{mid}", json={"max_tilt_deg": None, "name": "own, tilt global"})
+    assert r.status_code == 200 and [r.json()[k] for k in LIMITS] == [None, 1.5, 0.25], r.text
+    assert [client.get(f"/api/v1/machines/{mid}").json()[k] for k in LIMITS] == [None, 1.5, 0.25]
+    with server.client("operator") as op:   # operators read them, never change them
+        assert op.get(f"/api/v1/machines/{mid}").json()["max_offset_change_mm"] == 1.5
+        assert op.patch(f"/api/v1/machines/{mid}", json={"max_offset_change_mm": 50}).status_code == 403
+    with server.client("admin") as c:
+        last = c.get("/api/v1/audit", params={"action": "machine.update"}).json()[0]
+    assert last["detail"]["limits"] == {"max_tilt_deg": None, "max_offset_change_mm": 1.5,
+                                        "max_offset_change_deg": 0.25}
+
+
+@pytest.mark.parametrize("field, value, words", [
+    ("max_tilt_deg", -0.1, "greater than or equal to 0"),
+    ("max_tilt_deg", 11, "less than or equal to 10"),
+    ("max_tilt_deg", "NaN", "must be finite"),
+    ("max_offset_change_mm", 0, "greater than 0"),
+    ("max_offset_change_mm", -5, "greater than 0"),
+    ("max_offset_change_mm", "Infinity", "must be finite"),
+    ("max_offset_change_mm", 1e6, "less than or equal to 1000"),
+    ("max_offset_change_deg", 0, "greater than 0"),
+    ("max_offset_change_deg", 181, "less than or equal to 180"),
+    ("max_offset_change_deg", "a lot", "valid number"),
+])
+def test_machine_limits_out_of_bounds_are_refused_with_the_reason(client, table_id, field, value, words):
+    """Bad limits are 422 with the field and why, on create and on edit, and change nothing."""
+    m = client.post("/api/v1/machines", json={"name": f"bounds {field}", "table_model_id": table_id,
+                                              "travel_mm": TRAVEL, "max_offset_change_mm": 2.0}).json()
+    literal = value if value in ("NaN", "Infinity") else json.dumps(value)  # NaN/Infinity: what a sloppy client sends
+    base = json.dumps({"name": "bad", "table_model_id": table_id, "travel_mm": TRAVEL})
+    for method, url, body in (("POST", "/api/v1/machines", base[:-1] + f', "{field}": {literal}}}'),
+                              ("PATCH", f"/api/v1/machines/{m['id']}", f'{{"{field}": {literal}}}')):
+        r = client.request(method, url, content=body, headers={"Content-Type": "application/json"})
+        assert r.status_code == 422, (method, r.text)
+        if literal in ("NaN", "Infinity"):  # refused for the whole body before any field is looked at
+            assert r.json()["code"] == "non_finite_number", r.text
+        else:
+            assert r.json()["code"] == "invalid_parameter" and r.json()["detail"].startswith(field), r.text
+        assert words in r.json()["detail"], r.text
+    after = client.get(f"/api/v1/machines/{m['id']}").json()
+    assert after["name"] == f"bounds {field}" and after["max_offset_change_mm"] == 2.0
+    assert not any(x["name"] == "bad" for x in client.get("/api/v1/machines").json())

@@ -16,7 +16,7 @@ from app.services import library
 from app.store.db import alembic_config, make_engine, migrate
 from app.store.files import FileStore
 from app.store.models import LibraryModel
-from tests.support.live_server import postgres_database, postgres_unavailable_reason
+from tests.support.live_server import throwaway_database
 
 LIBRARY = Path(__file__).resolve().parents[2] / "models_library"
 FIXTURES = ("vise_150", "vise_125", "parallel_150x25x8", "parallel_150x32x8")
@@ -81,16 +81,7 @@ BACKENDS = ["sqlite", "postgres"]
 def test_migration_0006_adds_the_column_and_keeps_existing_revisions(tmp_path, backend):
     """A database at 0005 with a model in it: upgrading adds model_revision.support_surfaces (NULL for
     the old rows: derived from the mesh), downgrading removes it again, the rows stay."""
-    if backend == "postgres":
-        reason = postgres_unavailable_reason()
-        if reason:
-            pytest.skip(reason)
-        ctx = postgres_database()
-    else:
-        from contextlib import nullcontext
-
-        ctx = nullcontext(f"sqlite:///{tmp_path / 'm.db'}")
-    with ctx as url:
+    with throwaway_database(backend, tmp_path) as url:
         cfg = alembic_config(url)
         command.upgrade(cfg, "0005")
         engine = make_engine(url)

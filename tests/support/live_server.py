@@ -16,6 +16,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
+import pytest
 import uvicorn
 
 from app.config import Settings
@@ -54,6 +55,20 @@ def postgres_database() -> Iterator[str]:
     finally:
         with psycopg.connect(PG_ADMIN_DSN, autocommit=True) as conn:
             conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@contextlib.contextmanager
+def throwaway_database(backend: str, folder: Path) -> Iterator[str]:
+    """The SQLAlchemy URL of an empty database: a SQLite file in ``folder``, or a fresh PostgreSQL database
+    (the calling test is skipped, with the reason, when PostgreSQL does not answer)."""
+    if backend == "postgres":
+        reason = postgres_unavailable_reason()
+        if reason:
+            pytest.skip(reason)
+        with postgres_database() as url:
+            yield url
+    else:
+        yield f"sqlite:///{folder / 'migrations.db'}"
 
 
 class LiveServer:

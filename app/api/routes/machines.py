@@ -8,7 +8,7 @@ from typing import Any
 from fastapi import APIRouter, Depends, Response, status
 from pydantic import BaseModel, Field
 
-from app.api.deps import AdminPrincipal, SessionDep, get_principal
+from app.api.deps import AdminPrincipal, SessionDep, SettingsDep, get_principal
 from app.services import machines as svc
 from app.services.audit import audit
 
@@ -26,6 +26,17 @@ class Travel(BaseModel):
     z: list[float] = Field(min_length=2, max_length=2, examples=[[-500, 0]])
 
 
+def _limit(name: str, what: str) -> Any:
+    """An optional per-machine limit: finite, within the service's bounds; null = the global setting."""
+    return Field(default=None, allow_inf_nan=False, **svc.LIMIT_BOUNDS[name],
+                 description=f"{what}; null: the global setting {svc.setting_name(name)}")
+
+
+TILT_DOC = "Residual tilt (°) a 3-axis work offset may ignore on this machine; above it export is refused"
+CHANGE_MM_DOC = "X/Y/Z change (mm) against the controller's current slot that needs no acknowledgement"
+CHANGE_DEG_DOC = "C change (°) against the controller's current slot that needs no acknowledgement"
+
+
 class MachineCreate(BaseModel):
     name: str = Field(min_length=1, max_length=200, examples=["Mill 3"])
     table_model_id: int = Field(description="A library model of kind table with a fiducial layout")
@@ -35,6 +46,9 @@ class MachineCreate(BaseModel):
     travel_mm: Travel
     camera_ids: list[int] = Field(default_factory=list)
     controller: dict[str, Any] | None = Field(default=None, description=CONTROLLER_DOC)
+    max_tilt_deg: float | None = _limit("max_tilt_deg", TILT_DOC)
+    max_offset_change_mm: float | None = _limit("max_offset_change_mm", CHANGE_MM_DOC)
+    max_offset_change_deg: float | None = _limit("max_offset_change_deg", CHANGE_DEG_DOC)
 
 
 class MachineUpdate(BaseModel):
@@ -45,6 +59,9 @@ class MachineUpdate(BaseModel):
     travel_mm: Travel | None = None
     camera_ids: list[int] | None = None
     controller: dict[str, Any] | None = Field(default=None, description=CONTROLLER_DOC)
+    max_tilt_deg: float | None = _limit("max_tilt_deg", TILT_DOC)
+    max_offset_change_mm: float | None = _limit("max_offset_change_mm", CHANGE_MM_DOC)
+    max_offset_change_deg: float | None = _limit("max_offset_change_deg", CHANGE_DEG_DOC)
 
 
 class MachinePublic(BaseModel):
@@ -56,7 +73,15 @@ class MachinePublic(BaseModel):
     travel_mm: dict
     camera_ids: list[int]
     controller: dict | None
+    max_tilt_deg: float | None = Field(description=f"{TILT_DOC}; null: the global setting")
+    max_offset_change_mm: float | None = Field(description=f"{CHANGE_MM_DOC}; null: the global setting")
+    max_offset_change_deg: float | None = Field(description=f"{CHANGE_DEG_DOC}; null: the global setting")
     created_at: datetime
+
+
+class LimitDefault(BaseModel):
+    value: float = Field(description="mm or ° as the name says")
+    setting: str = Field(description="the environment variable it is read from")
 
 
 def _public(m) -> MachinePublic:
@@ -74,6 +99,13 @@ def create_machine(session: SessionDep, admin: AdminPrincipal, body: MachineCrea
     return _public(m)
 
 
+@router.get("/default-limits", response_model=dict[str, LimitDefault],
+            summary="The global limits a machine without its own uses (max tilt, offset change)")
+def default_limits(settings: SettingsDep) -> dict[str, LimitDefault]:
+    return {name: LimitDefault(value=getattr(settings, name), setting=svc.setting_name(name))
+            for name in svc.LIMIT_BOUNDS}
+
+
 @router.get("", response_model=list[MachinePublic], summary="List machines")
 def list_machines(session: SessionDep) -> list[MachinePublic]:
     return [_public(m) for m in svc.list_machines(session)]
@@ -89,7 +121,8 @@ def update_machine(session: SessionDep, admin: AdminPrincipal, machine_id: int, 
     changes = body.model_dump(exclude_unset=True)
     m = svc.update_machine(session, machine_id, changes)
     audit(session, admin.label(), "machine.update", machine_id=m.id, changed=sorted(changes),
-          travel_mm=m.travel_mm, T_machine_table=m.T_machine_table)
+          travel_mm=m.travel_mm, T_machine_table=m.T_machine_table,
+          limits={name: getattr(m, name) for name in svc.LIMIT_BOUNDS})
     return _public(m)
 
 
