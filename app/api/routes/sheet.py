@@ -9,10 +9,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, File, Form, Request, Response, UploadFile, status
 from fastapi.responses import StreamingResponse
+from starlette.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal, \
     require_admin
+from app.api.routes.jobs import JobAccepted, enqueue
 from app.api.uploads import check_image, json_form, read_image_upload, read_upload
 from app.services import sheet as svc
 from app.services.errors import NotFound
@@ -137,8 +139,9 @@ def get_bed_pose(session: SessionDep, camera_id: int) -> BedPosePublic:
 
 
 # ----------------------------------------------------------------------------------------- alignments
-@router.post("/alignments", status_code=status.HTTP_201_CREATED, response_model=AlignmentPublic,
-             summary="Find the sheet (corners, angle, work offset) in an uploaded or grabbed image",
+@router.post("/alignments", status_code=status.HTTP_202_ACCEPTED, response_model=JobAccepted,
+             summary="Find the sheet (corners, angle, work offset) in an uploaded or grabbed image; a job whose "
+                     "result is the alignment",
              responses={422: {"description": "bad image, pose, margin; camera without intrinsics"}})
 async def create_alignment(
     request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep, who: CurrentPrincipal,
@@ -149,15 +152,15 @@ async def create_alignment(
     T_cam_bed: Annotated[str | None, Form(description="JSON 4x4 (mm); default: the camera's stored bed pose")] = None,
     grab: Annotated[bool, Form(description="grab the image from the camera's source")] = False,
     image: Annotated[UploadFile | None, File(description="JPEG/PNG of the bed")] = None,
-) -> AlignmentPublic:
+) -> JobAccepted:
     data = await read_image_upload(image, settings, "image") if image is not None and image.filename else None
     pose = json_form(T_cam_bed, "T_cam_bed")
     if isinstance(pose, dict):
         pose = pose.get("T_cam_bed")
-    row = await asyncio.to_thread(
-        svc.create_alignment, session, files, request.app.state.events, machine_id=machine_id, camera_id=camera_id,
-        image=data, grab=grab, T_cam_bed=pose, thickness_mm=thickness_mm, margin_mm=margin_mm, by=who.label())
-    return _alignment(row)
+    args = await run_in_threadpool(
+        svc.prepare_alignment, session, files, machine_id=machine_id, camera_id=camera_id, image=data, grab=grab,
+        T_cam_bed=pose, thickness_mm=thickness_mm, margin_mm=margin_mm, by=who.label())
+    return enqueue(request, session, "sheet_align", args, who.label())
 
 
 @router.get("/alignments/{alignment_id}", response_model=AlignmentPublic, summary="One sheet alignment")
