@@ -1,21 +1,24 @@
-"""Jobs on the embedded SQLite default: the service's own worker threads run them; a job's timeout;
-a service killed (-9) with one job running and one queued, started again: both end located."""
+"""Jobs run by the service itself (SETUPCAM_EMBEDDED_WORKER, the default): a setup as a job, a job's timeout;
+a service killed (-9) with one job running and one queued, started again (SQLite and PostgreSQL): both end located."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import sys
+from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.support.live_server import live_server
+from tests.support.live_server import live_server, postgres_database, postgres_unavailable_reason
 from tests.support.sample_setup import sample_machine, start_setup, wait_for
 from tests.support.service_process import clean_env, service_process
 
 pytestmark = pytest.mark.integration
+REPO = Path(__file__).resolve().parents[2]
 
 
 def sse_events(client: httpx.Client, url: str) -> list[tuple[str, dict]]:
@@ -60,14 +63,24 @@ def test_a_job_past_its_timeout_fails_with_that_reason(tmp_path):
 
 
 @pytest.mark.slow
-def test_service_killed_with_jobs_running_and_queued_finishes_them_after_restart(tmp_path):
+@pytest.mark.parametrize("backend", ["sqlite", pytest.param("postgres", marks=pytest.mark.postgres)])
+def test_service_killed_with_jobs_running_and_queued_finishes_them_after_restart(tmp_path, backend):
     data = tmp_path / "data"
     # one worker thread: the first setup runs, the second waits; a job silent for 2 s is taken as dead
     env = clean_env(SETUPCAM_WORKERS="1", SETUPCAM_JOB_STALL_S="2", SETUPCAM_JOB_HEARTBEAT_S="0.5",
-                    SETUPCAM_LOG_JSON="false")
+                    SETUPCAM_LOG_JSON="false", PYTHONPATH=str(REPO))
     command = [sys.executable, "-m", "app.cli"]
-    env["PYTHONPATH"] = str(os.getcwd())
-    with service_process(command, data, cwd=os.getcwd(), env=env) as svc:
+    with contextlib.ExitStack() as stack:
+        if backend == "postgres":
+            why = postgres_unavailable_reason()
+            if why:
+                pytest.skip(why)
+            env["DATABASE_URL"] = stack.enter_context(postgres_database())
+        _kill_and_restart(command, data, env)
+
+
+def _kill_and_restart(command: list[str], data, env: dict) -> None:
+    with service_process(command, data, cwd=REPO, env=env) as svc:
         password = svc.first_admin_password()
         with signed_in(svc.url, password) as c:
             machine_id, bracket = sample_machine(c)
@@ -76,7 +89,8 @@ def test_service_killed_with_jobs_running_and_queued_finishes_them_after_restart
             assert c.get(second["job_url"]).json()["status"] == "queued"
         os.kill(svc.proc.pid, signal.SIGKILL)  # power cut: nothing is settled on the way down
         svc.proc.wait(10)
-    with service_process(command, data, cwd=os.getcwd(), env=env) as svc:
+    env = {**env, "SETUPCAM_WORKERS": "2"}  # after the restart both run side by side
+    with service_process(command, data, cwd=REPO, env=env) as svc:
         with signed_in(svc.url, password) as c:
             for accepted, attempts in ((first, 2), (second, 1)):
                 job = wait_for(c, accepted["job_url"], lambda j: j["status"] in ("done", "failed"), 240)
