@@ -32,6 +32,7 @@ from app.services.job_kinds import KINDS
 from app.services.jobs import JobContext
 from app.services.queues import make_queue
 from app.services.setups import enqueue_orphaned_setups
+from app.services.sheet import SheetMonitors
 from app.services.throttle import LoginThrottle
 from app.store.db import make_engine, migrate, protect_data, session_scope
 from app.store.files import FileStore
@@ -76,6 +77,9 @@ def startup(app: FastAPI) -> None:
     # exports a previous run left pending / writing / unknown are settled by reading the controllers back
     threading.Thread(target=reconcile_open_exports, args=(ctx,), name="export-reconcile", daemon=True).start()
     app.state.export_watch = ExportWatch(ctx, settings.export_watch_s).start()
+    # sheet monitors live as long as the service: those a previous run left running carry on
+    app.state.sheet_monitors = SheetMonitors(app.state.engine, app.state.files, app.state.events, sheet.decision_url)
+    app.state.sheet_monitors.resume()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -89,9 +93,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                           "data_dir": str(settings.data_dir)})
         yield
         stop_viewer(app)
-        monitors = getattr(app.state, "sheet_monitors", None)
-        if monitors is not None:
-            monitors.shutdown()
+        app.state.sheet_monitors.shutdown()  # their state stays 'running' in the database: the next start resumes them
         app.state.export_watch.stop()
         app.state.jobs.shutdown()
         app.state.events.close()

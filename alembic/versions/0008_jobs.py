@@ -1,4 +1,5 @@
-"""jobs: one table for all long work; on PostgreSQL also Procrastinate's schema (the queue that delivers them)
+"""jobs: one table for all long work; on PostgreSQL also Procrastinate's schema (the queue that delivers them);
+a sheet monitor's drift state (it resumes after a restart)
 
 Revision ID: 0008
 Revises: 0007
@@ -36,6 +37,8 @@ def upgrade() -> None:
     )
     op.create_index('ix_job_kind', 'job', ['kind'])
     op.create_index('ix_job_status', 'job', ['status'])
+    with op.batch_alter_table('sheet_monitor', schema=None) as batch_op:
+        batch_op.add_column(sa.Column('drift_state', sa.JSON(), nullable=True))
     bind = op.get_bind()
     if bind.dialect.name == 'postgresql':
         from procrastinate.schema import SchemaManager
@@ -47,6 +50,8 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
+    with op.batch_alter_table('sheet_monitor', schema=None) as batch_op:
+        batch_op.drop_column('drift_state')
     op.drop_index('ix_job_status', table_name='job')
     op.drop_index('ix_job_kind', table_name='job')
     op.drop_table('job')

@@ -290,13 +290,50 @@ class SheetMonitors:
         self._runs: dict[int, _Runtime] = {}
         self._lock = threading.Lock()
 
-    @staticmethod
-    def finish_stale(session: Session) -> None:
-        """Monitors left 'running' by an earlier run of the service lost their drift state: finish them."""
-        for mon in session.exec(select(SheetMonitor).where(SheetMonitor.state == "running")).all():
-            mon.state, mon.reason, mon.updated_at = "finished", "the service restarted; start a new monitor", utcnow()
-            session.add(mon)
-        session.flush()
+    def resume(self) -> list[int]:
+        """At start-up: the monitors left 'running' by an earlier run of the service carry on from their
+        stored drift state (and poll again); one that cannot (its alignment picture or camera source is
+        gone) is finished with the reason. Returns the ids resumed."""
+        resumed = []
+        with Session(self.engine, expire_on_commit=False) as session:
+            rows = session.exec(select(SheetMonitor).where(SheetMonitor.state == "running")).all()
+            for mon in rows:
+                try:
+                    align = get_alignment(session, mon.alignment_id)
+                    drift = self._drift(align, mon.l1_mm, mon.l2_mm, mon.roi_px)
+                    if mon.drift_state:
+                        drift.restore(mon.drift_state)
+                    cam = get_camera(session, align.camera_id)
+                    source = make_source(cam.source) if mon.interval_s is not None else None
+                except Exception as exc:  # noqa: BLE001 - whatever broke, the monitor says so and stops
+                    mon.state, mon.updated_at = "finished", utcnow()
+                    mon.reason = f"could not resume after the service restarted: {exc}"[:2000]
+                    session.add(mon)
+                    log.warning("sheet monitor not resumed", extra={"monitor_id": mon.id, "reason": mon.reason})
+                    continue
+                self._run(mon.id, drift, source, mon.interval_s)
+                resumed.append(mon.id)
+            session.commit()
+        if resumed:
+            log.info("sheet monitors resumed", extra={"monitor_ids": resumed})
+        return resumed
+
+    def _drift(self, align: SheetAlignment, l1_mm: float, l2_mm: float, roi_px: int) -> DriftMonitor:
+        """A drift monitor of a located alignment, its start corners confirmed on the alignment's picture."""
+        image = read_image(self.files.read(align.image_sha256), "alignment image")
+        plane = _plane(align.intrinsics, align.T_cam_bed, align.thickness_mm)
+        return DriftMonitor(np.asarray(align.result["corners_px"]), plane, l1_mm, l2_mm, margin_mm=align.margin_mm,
+                            roi_px=roi_px, start_frame=image)
+
+    def _run(self, monitor_id: int, drift: DriftMonitor, source, interval_s: float | None) -> _Runtime:
+        rt = _Runtime(monitor_id, drift)
+        with self._lock:
+            self._runs[monitor_id] = rt
+        if source is not None:
+            rt.thread = threading.Thread(target=self._poll, args=(rt, source, interval_s),
+                                         name=f"sheet-monitor-{monitor_id}", daemon=True)
+            rt.thread.start()
+        return rt
 
     # ------------------------------------------------------------------ start / stop
     def start(self, session: Session, *, alignment_id: int, l1_mm: float, l2_mm: float, interval_s: float | None,
@@ -326,11 +363,8 @@ class SheetMonitors:
                               "configure a source or post frames (interval_s = null)")
 
             source = make_source(cam.source)
-        image = read_image(self.files.read(row.image_sha256), "alignment image")
-        plane = _plane(row.intrinsics, row.T_cam_bed, row.thickness_mm)
         try:
-            drift = DriftMonitor(np.asarray(row.result["corners_px"]), plane, l1_mm, l2_mm, margin_mm=row.margin_mm,
-                                 roi_px=roi_px, start_frame=image)
+            drift = self._drift(row, l1_mm, l2_mm, roi_px)
         except ValueError as exc:
             raise Invalid(f"monitor not started: {exc}") from None
         mon = SheetMonitor(alignment_id=row.id, l1_mm=l1_mm, l2_mm=l2_mm, interval_s=interval_s, slot=slot,
@@ -340,13 +374,7 @@ class SheetMonitors:
         audit(session, actor, "sheet.monitor_start", machine_id=row.machine_id, alignment_id=row.id,
               monitor_id=mon.id, l1_mm=l1_mm, l2_mm=l2_mm, slot=slot)
         session.commit()
-        rt = _Runtime(mon.id, drift)
-        with self._lock:
-            self._runs[mon.id] = rt
-        if source is not None:
-            rt.thread = threading.Thread(target=self._poll, args=(rt, source, interval_s),
-                                         name=f"sheet-monitor-{mon.id}", daemon=True)
-            rt.thread.start()
+        self._run(mon.id, drift, source, interval_s)
         log.info("sheet monitor started", extra={"monitor_id": mon.id, "alignment_id": row.id})
         return mon
 
@@ -453,6 +481,7 @@ class SheetMonitors:
                                        frame_sha256=frame_sha, picture_sha256=picture_sha)
                 session.add(ev)
                 mon.frames += 1
+                mon.drift_state = rt.drift.state()  # in the row: the monitor resumes after a restart
                 mon.updated_at = utcnow()
                 session.add(mon)
                 session.flush()
@@ -504,21 +533,6 @@ def _controller_call(machine, what: str) -> str:
         return f"failed: {exc}"
     finally:
         controller.close()
-
-
-_REGISTRY_LOCK = threading.Lock()
-
-
-def registry(app_state, session: Session, decision_url: DecisionUrl) -> SheetMonitors:
-    """The service's :class:`SheetMonitors`, made on first use, which finishes (in ``session``) the monitors
-    left 'running' by an earlier run of the service."""
-    with _REGISTRY_LOCK:
-        reg = getattr(app_state, "sheet_monitors", None)
-        if reg is None:
-            SheetMonitors.finish_stale(session)
-            reg = app_state.sheet_monitors = SheetMonitors(app_state.engine, app_state.files, app_state.events,
-                                                             decision_url)
-    return reg
 
 
 def get_monitor(session: Session, monitor_id: int) -> SheetMonitor:

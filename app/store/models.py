@@ -304,6 +304,8 @@ class SheetMonitor(SQLModel, table=True):
     state: str = Field(default="running", max_length=20, index=True, description="running | stopped | finished")
     reason: str = Field(default="", max_length=2000)
     last_decision: dict | None = json_field()
+    drift_state: dict | None = json_field(description="DriftMonitor.state() after the last frame: resumes after a "
+                                                      "restart")
     frames: int = 0
     created_by: str | None = Field(default=None, max_length=200)
     created_at: datetime = Field(default_factory=utcnow)

@@ -202,7 +202,7 @@ def export_alignment(request: Request, session: SessionDep, alignment_id: int, b
 @router.post("/monitors", status_code=status.HTTP_201_CREATED, response_model=MonitorPublic,
              summary="Start drift monitoring of a confirmed alignment (camera polling or posted frames)")
 def start_monitor(request: Request, session: SessionDep, body: MonitorIn, who: OperatorPrincipal) -> MonitorPublic:
-    mon = svc.registry(request.app.state, session, decision_url).start(
+    mon = request.app.state.sheet_monitors.start(
         session, alignment_id=body.alignment_id, l1_mm=body.l1_mm, l2_mm=body.l2_mm, interval_s=body.interval_s,
         slot=body.slot, roi_px=body.roi_px, actor=who.label(), hold_after_unseen=body.hold_after_unseen)
     return _monitor(session, mon)
@@ -210,13 +210,11 @@ def start_monitor(request: Request, session: SessionDep, body: MonitorIn, who: O
 
 @router.get("/monitors", response_model=list[MonitorPublic], summary="Recent monitors, newest first")
 def list_monitors(request: Request, session: SessionDep, state: str | None = None, limit: int = 20) -> list[MonitorPublic]:
-    svc.registry(request.app.state, session, decision_url)
     return [_monitor(session, m, recent=1) for m in svc.list_monitors(session, state, max(1, min(limit, 100)))]
 
 
 @router.get("/monitors/{monitor_id}", response_model=MonitorPublic, summary="State and recent decisions")
 def get_monitor(request: Request, session: SessionDep, monitor_id: int, recent: int = 100) -> MonitorPublic:
-    svc.registry(request.app.state, session, decision_url)
     return _monitor(session, svc.get_monitor(session, monitor_id), max(1, min(recent, svc.RECENT)))
 
 
@@ -227,7 +225,7 @@ async def post_frame(request: Request, session: SessionDep, settings: SettingsDe
     data = await read_upload(frame, settings, "frame") if frame is not None else None
     if data:  # never decode an image over the pixel limit; an unreadable frame is the monitor's to judge
         check_image(data, settings, "frame", unreadable_ok=True)
-    reg = svc.registry(request.app.state, session, decision_url)
+    reg = request.app.state.sheet_monitors
     session.commit()  # the frame is processed in sessions of its own
     return await asyncio.to_thread(reg.process, monitor_id, data or None, actor=who.label())
 
@@ -236,7 +234,7 @@ async def post_frame(request: Request, session: SessionDep, settings: SettingsDe
              summary="End monitoring (and, with stop_machine, abort the program)")
 def stop_monitor(request: Request, session: SessionDep, monitor_id: int, who: OperatorPrincipal,
                  body: StopIn | None = None) -> MonitorPublic:
-    mon = svc.registry(request.app.state, session, decision_url).end(session, monitor_id, who.label(),
+    mon = request.app.state.sheet_monitors.end(session, monitor_id, who.label(),
                                               stop_machine=bool(body and body.stop_machine))
     return _monitor(session, mon)
 
