@@ -152,9 +152,8 @@ def latency_run(label: str, tmp: Path, seconds: float, plant: bool) -> tuple[str
             wait_for(c, s["url"], lambda b: b["status"] == "running", 300, "all four running")
         load_avg = os.getloadavg()[0]
         times = load(c, setups[0], seconds)
-        running = sum(c.get(s["url"]).json()["status"] == "running" for s in setups)
-        assert running == 4, "the four localisations ran through the whole measurement"
-    return label, times, load_avg
+        running = [c.get(s["url"]).json()["status"] for s in setups]
+    return f"{label}; at the end of the measurement the 4 setups were {', '.join(running)}", times, load_avg
 
 
 def pct(values: list[float], q: float) -> float:
@@ -165,9 +164,11 @@ def pct(values: list[float], q: float) -> float:
 def blank_setups(c: httpx.Client, n: int) -> list[dict]:
     """``n`` setups of a grey picture (no table markers): the job's short path."""
     machine = make_machine(c, None)
-    img = cv2.imencode(".png", np.full((200, 320), 128, np.uint8))[1].tobytes()
 
     def post(i: int) -> dict:
+        grey = np.full((200, 320), 128, np.uint8)
+        grey.flat[:4] = np.frombuffer(int(i + n * time.time_ns() % 10**9).to_bytes(4, "little"), np.uint8)
+        img = cv2.imencode(".png", grey)[1].tobytes()  # one file each: no two requests store the same bytes
         r = c.post("/api/v1/setups", data={"machine_id": str(machine["id"])},
                    files={"image": (f"grey{i}.png", img, "image/png")})
         assert r.status_code == 202, r.text
@@ -198,23 +199,30 @@ def drain(n_workers: int, tmp: Path, n_jobs: int) -> dict:
                 time.sleep(0.5)
         lost = [r.id for r in rows if r.reason and "internal error" in r.reason]
         statuses = {r.status for r in rows}
-        first = min(r.started_at for r in rows)
+        # steady state: each worker's first job prepares the library's models for its process (seconds);
+        # the window starts when the last worker has finished its first job
+        per_worker: dict[str, list] = {}
+        for r in sorted(rows, key=lambda r: r.started_at):
+            per_worker.setdefault(r.worker.split("/")[0], []).append(r)
+        warm = max(jobs[0].finished_at for jobs in per_worker.values())
+        steady = [r for r in rows if r.started_at >= warm]
         last = max(r.finished_at for r in rows)
-        run_s = [(r.finished_at - r.started_at).total_seconds() for r in rows]
-        by_worker = {}
-        for r in rows:
-            by_worker[r.worker.split("/")[0]] = by_worker.get(r.worker.split("/")[0], 0) + 1
-        # the same job function called directly, on as many fresh setups
-        direct = blank_setups(c, n_jobs)
+        first_job_s = statistics.mean((jobs[0].finished_at - jobs[0].started_at).total_seconds()
+                                      for jobs in per_worker.values())
+        run_s = [(r.finished_at - r.started_at).total_seconds() for r in steady]
+        # the same job function called directly, on as many fresh setups (the first one warms the cache)
+        direct = blank_setups(c, n_jobs + 1)
         ctx = JobContext(engine, FileStore(Path(data) / "files"), Settings(SETUPCAM_DATA_DIR=str(data), DATABASE_URL=url))
+        run_setup_job(JobRun(ctx, direct[0]["job_id"], 1, time.monotonic() + 600), direct[0]["id"])
         t0 = time.perf_counter()
-        for a in direct:
+        for a in direct[1:]:
             run_setup_job(JobRun(ctx, a["job_id"], 1, time.monotonic() + 600), a["id"])
         direct_s = (time.perf_counter() - t0) / n_jobs
         engine.dispose()
-    return {"workers": n_workers, "drain_s": (last - first).total_seconds(), "jobs": len(rows),
-            "ended": sorted(statuses), "crashed": len(lost), "mean_run_s": statistics.mean(run_s),
-            "per_worker": sorted(by_worker.values()), "direct_s": direct_s}
+    return {"workers": n_workers, "drain_s": (last - warm).total_seconds(), "steady_jobs": len(steady),
+            "jobs": len(rows), "ended": sorted(statuses), "crashed": len(lost), "first_job_s": first_job_s,
+            "mean_run_s": statistics.mean(run_s), "per_worker": sorted(len(j) for j in per_worker.values()),
+            "direct_s": direct_s, "total_s": (last - min(r.started_at for r in rows)).total_seconds()}
 
 
 # ------------------------------------------------------------------------------------------ report
@@ -222,6 +230,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--jobs", type=int, default=100)
+    ap.add_argument("--workers", default="1,2,4", help="worker processes per drain, comma-separated")
     args = ap.parse_args()
     started = time.monotonic()
     import tempfile
@@ -230,7 +239,7 @@ def main() -> None:
     lat = [latency_run("SQLite, 4 jobs in the service (embedded worker, SETUPCAM_WORKERS=4)", tmp, args.seconds, False),
            latency_run("PostgreSQL, service only enqueues, 2 x `setupcam worker --concurrency 2`", tmp, args.seconds,
                        True)]
-    thr = [drain(n, tmp, args.jobs) for n in (1, 2, 4)]
+    thr = [drain(int(n), tmp, args.jobs) for n in args.workers.split(",")]
     cpu = next((l.split(":", 1)[1].strip() for l in Path("/proc/cpuinfo").read_text().splitlines()
                 if l.startswith("model name")), platform.processor())
     lines = [
@@ -250,23 +259,30 @@ def main() -> None:
             lines.append(f"| {name} | {len(v)} | {pct(v, 50):.1f} | {pct(v, 95):.1f} | {max(v):.1f} |")
         worst = max(pct(v, 95) for v in times.values())
         lines += ["", f"Worst p95: {worst:.1f} ms ({'within' if worst < 100 else 'ABOVE'} the 100 ms goal).", ""]
-    lines += ["## Throughput: 100 setups drained by 1, 2 and 4 worker processes (PostgreSQL, Procrastinate)", "",
-              "The job's short path (a grey picture: decode, marker search, failed with its reason, stages "
-              "stored), so that the queue shows; queued first, then the workers started; drain = first job's "
-              "start to last job's end (the job rows' timestamps).", "",
-              "| workers | jobs | ended | drain s | jobs/s | speed-up | mean run s | jobs per worker |",
-              "| ---: | ---: | --- | ---: | ---: | ---: | ---: | --- |"]
+    lines += [f"## Throughput: {args.jobs} setups drained by 1, 2 and 4 worker processes (PostgreSQL, Procrastinate)",
+              "", "The job's short path (a grey picture: its stored image decoded, the marker search, failed "
+              "with its reason and stages stored), so that the queue shows, not the vision. The setups are "
+              "queued first, then the workers start. Each worker's first job also prepares the example "
+              "library's models for its process (recognition looks at all of them): that is the "
+              "\"first job\" column; the steady state starts when every worker has done its first job and "
+              "ends with the last job (the job rows' own timestamps).", "",
+              "| workers | jobs | ended | all jobs, s | first job, s | steady: jobs | steady: s | jobs/s | "
+              "speed-up | run per job, ms | jobs per worker |",
+              "| ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
+    base = thr[0]["steady_jobs"] / thr[0]["drain_s"]
     for t in thr:
-        lines.append(f"| {t['workers']} | {t['jobs']} | {', '.join(t['ended'])} (0 lost, {t['crashed']} crashed) | "
-                     f"{t['drain_s']:.1f} | {t['jobs'] / t['drain_s']:.1f} | {thr[0]['drain_s'] / t['drain_s']:.2f} | "
-                     f"{t['mean_run_s']:.3f} | {t['per_worker']} |")
+        rate = t["steady_jobs"] / t["drain_s"]
+        lines.append(f"| {t['workers']} | {t['jobs']} | {', '.join(t['ended'])} (none lost, {t['crashed']} crashed) "
+                     f"| {t['total_s']:.1f} | {t['first_job_s']:.1f} | {t['steady_jobs']} | {t['drain_s']:.1f} | "
+                     f"{rate:.1f} | {rate / base:.2f} | {t['mean_run_s'] * 1e3:.0f} | {t['per_worker']} |")
     direct = statistics.mean(t["direct_s"] for t in thr)
-    per_job = thr[0]["drain_s"] / thr[0]["jobs"]
-    lines += ["", f"The same job function called directly in one process: {direct * 1e3:.0f} ms per job. "
-              f"Through the queue with one worker: {per_job * 1e3:.0f} ms per job, so the queue (Procrastinate "
-              f"fetch, claim, heartbeat thread, result write) costs about {(per_job - direct) * 1e3:.0f} ms "
-              "per job: nothing against a localisation of 10 to 30 s.", "",
-              "With 2 cores, 2 workers is where the speed-up stops; more workers only share the same cores."]
+    per_job = thr[0]["drain_s"] / thr[0]["steady_jobs"]
+    lines += ["", f"The same job function called directly in one process (warm): {direct * 1e3:.0f} ms per job. "
+              f"Through the queue with one worker (steady state): {per_job * 1e3:.0f} ms per job, so the queue "
+              f"(Procrastinate's fetch, the claim, the heartbeat thread, the result write) costs about "
+              f"{(per_job - direct) * 1e3:.0f} ms per job: nothing against a localisation of 10 to 30 s.", "",
+              "On 2 cores the speed-up ends at 2 workers; more workers only share the same cores. Nothing was "
+              "lost: every job ended (the short path ends `failed`, no table markers)."]
     OUT.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
