@@ -194,7 +194,9 @@ def execute(ctx: JobContext, kinds: dict[str, JobKind], job_id: int, worker: str
         outcome = kind.run(run, **job.args)
         run.check()
     except JobStopped:
-        return "failed"  # the watchdog wrote why (timeout), or another worker holds the job now
+        if time.monotonic() > run.deadline:  # the watchdog may not have looked yet: the reason is written once
+            fail_job(ctx, kinds, job, timeout_reason(job), attempt=run.attempt)
+        return "failed"  # else another worker holds the job now
     except Exception as exc:  # noqa: BLE001 - a crash ends the job failed, with a reason
         log.exception("job crashed", extra={"job_id": job.id, "kind": job.kind})
         fail_job(ctx, kinds, job, f"internal error in {job.kind} ({exc.__class__.__name__}); it has been logged",
@@ -216,13 +218,16 @@ def _watch(ctx: JobContext, kinds: dict[str, JobKind], job: Job, run: JobRun) ->
     beat = ctx.settings.job_heartbeat_s
     while not run.stopped.wait(beat):
         if time.monotonic() > run.deadline:
-            fail_job(ctx, kinds, job, f"timed out after {job.timeout_s:g} s (SETUPCAM_JOB_TIMEOUT_S)",
-                     attempt=run.attempt)
+            fail_job(ctx, kinds, job, timeout_reason(job), attempt=run.attempt)
             run.stopped.set()
             return
         if not _set(ctx.engine, job.id, {"status": "running", "attempts": run.attempt}, heartbeat_at=utcnow()):
             run.stopped.set()  # taken over or ended elsewhere: this run's writes would be refused anyway
             return
+
+
+def timeout_reason(job: Job) -> str:
+    return f"timed out after {job.timeout_s:g} s (SETUPCAM_JOB_TIMEOUT_S)"
 
 
 def lower_priority() -> None:

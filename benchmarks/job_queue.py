@@ -12,7 +12,7 @@
    queue, not the vision. Its direct cost: the same job function called in this process on 100 more
    such setups; the queue's overhead per job is the 1-worker drain per job minus that.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/queue.py [--seconds 20]   # writes benchmarks/queue.md
+    PYTHONPATH=. .venv/bin/python benchmarks/job_queue.py [--seconds 20]   # writes benchmarks/job_queue.md
 """
 
 from __future__ import annotations
@@ -244,7 +244,7 @@ def main() -> None:
                 if l.startswith("model name")), platform.processor())
     lines = [
         "# Jobs under load: page latency and queue throughput (issue 14)", "",
-        "Command:", "", "    PYTHONPATH=. .venv/bin/python benchmarks/queue.py", "",
+        "Command:", "", "    PYTHONPATH=. .venv/bin/python benchmarks/job_queue.py", "",
         f"Date: {datetime.date.today()}. Machine: {os.cpu_count()} cores, `{cpu}`, shared with other work. "
         f"Wall clock {time.monotonic() - started:.0f} s.", "",
         "## Page latency while 4 localisations run", "",
