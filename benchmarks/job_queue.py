@@ -45,7 +45,7 @@ from app.store.files import FileStore  # noqa: E402
 from app.store.models import Job  # noqa: E402
 from sqlmodel import Session, select  # noqa: E402
 from tests.support.factories import make_machine  # noqa: E402
-from tests.support.live_server import free_port, postgres_database  # noqa: E402
+from tests.support.live_server import postgres_database  # noqa: E402
 from tests.support.sample_setup import sample_machine, start_setup, wait_for  # noqa: E402
 from tests.support.service_process import clean_env, service_process  # noqa: E402
 

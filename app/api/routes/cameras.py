@@ -17,7 +17,6 @@ from app.services import cameras as svc
 from app.services import printing
 from app.services.cameras import Intrinsics
 from app.services.audit import audit
-from app.services.errors import Invalid
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], dependencies=[Depends(get_principal)])
 
