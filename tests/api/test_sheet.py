@@ -7,6 +7,7 @@ re-datum and the stop of a running program. A camera-polled monitor reads a tmp 
 from __future__ import annotations
 
 import json
+import shutil
 import threading
 import time
 
@@ -18,7 +19,7 @@ import pytest
 from app.synth.bed_images import bed_camera, drift_sequence, render_bed_image, scene_variant
 from tests.support.jobs import settled
 from tests.support.factories import make_machine
-from tests.support.live_server import live_server
+from tests.support.live_server import LiveServer, live_server
 
 pytestmark = pytest.mark.integration  # a live server; LinuxCNC where a controller is involved
 
@@ -361,9 +362,9 @@ def test_redatum_during_a_program_holds_it_and_unseen_frames_hold_it(server, lcn
         assert {"sheet.redatum.read_failed", "sheet.redatum_pause", "sheet.unseen_hold", "sheet.operator_stop"} <= actions
 
 
-def test_a_restart_finishes_running_monitors(tmp_path, bed_image):
-    """The drift state lives in the service process: after a restart a 'running' monitor says it ended.
-    (A restart is simulated by dropping the service's monitor registry, which is all a new process lacks.)"""
+def test_a_monitor_that_cannot_resume_after_a_restart_says_why(tmp_path, bed_image):
+    """Monitors resume after a restart from their stored drift state (tests/jobs/test_monitor_resume.py);
+    one whose alignment picture is gone cannot, and ends 'finished' with the reason."""
     with live_server(tmp_path, "sqlite") as srv:
         with srv.client("admin") as c:
             cam = c.post("/api/v1/cameras", json={"name": "bed cam", "intrinsics": CAM.intrinsics_dict()}).json()
@@ -373,7 +374,15 @@ def test_a_restart_finishes_running_monitors(tmp_path, bed_image):
             c.post(f"/api/v1/sheet/alignments/{aid}/confirm")
             mid = c.post("/api/v1/sheet/monitors", json={"alignment_id": aid, "l1_mm": 1.0, "l2_mm": 4.0}).json()["id"]
             assert c.get(f"/api/v1/sheet/monitors/{mid}").json()["state"] == "running"
-            del srv.app.state.sheet_monitors
-            mon = c.get(f"/api/v1/sheet/monitors/{mid}").json()
-            assert mon["state"] == "finished" and "restarted" in mon["reason"]
-            assert c.post(f"/api/v1/sheet/monitors/{mid}/frames").status_code == 409
+        srv.stop()
+        shutil.rmtree(srv.settings.files_dir)  # the alignment's picture with it
+        again = LiveServer(srv.settings).start()
+        try:
+            again.tokens = srv.tokens
+            with again.client("operator") as c:
+                mon = c.get(f"/api/v1/sheet/monitors/{mid}").json()
+                assert mon["state"] == "finished", mon
+                assert mon["reason"].startswith("could not resume after the service restarted"), mon["reason"]
+                assert c.post(f"/api/v1/sheet/monitors/{mid}/frames").status_code == 409
+        finally:
+            again.stop()
