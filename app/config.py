@@ -43,8 +43,20 @@ class Settings(BaseSettings):
                                description="Body of a JSON (or text) request; above: 413 before it is read.")
     max_json_depth: int = Field(default=32, gt=0, validation_alias="SETUPCAM_MAX_JSON_DEPTH",
                                 description="Nesting of arrays/objects a JSON body may have; deeper: 422.")
-    workers: int = Field(default=1, validation_alias="SETUPCAM_WORKERS",
-                         description="Background job threads in the service process.")
+    workers: int = Field(default=1, ge=1, validation_alias="SETUPCAM_WORKERS",
+                         description="Jobs the service's embedded worker runs at once (threads).")
+    embedded_worker: bool = Field(default=True, validation_alias="SETUPCAM_EMBEDDED_WORKER",
+                                  description="Run jobs inside the service (the SQLite default). false: the service "
+                                              "only enqueues and `setupcam worker` processes run the jobs.")
+    job_timeout_s: float = Field(default=600.0, gt=0, validation_alias="SETUPCAM_JOB_TIMEOUT_S",
+                                 description="A job running longer fails with this reason.")
+    job_max_attempts: int = Field(default=3, ge=1, validation_alias="SETUPCAM_JOB_MAX_ATTEMPTS",
+                                  description="Starts of a job whose worker died before it is failed.")
+    job_heartbeat_s: float = Field(default=2.0, gt=0, validation_alias="SETUPCAM_JOB_HEARTBEAT_S",
+                                   description="How often a running job and its worker say they are alive.")
+    job_stall_s: float = Field(default=30.0, gt=0, validation_alias="SETUPCAM_JOB_STALL_S",
+                               description="A running job (or worker) silent this long is taken as dead: its "
+                                           "job is queued again for another worker.")
     max_tilt_deg: float = Field(default=0.2, validation_alias="SETUPCAM_MAX_TILT_DEG",
                                 description="Residual tilt a 3-axis work offset may ignore; above it export is refused.")
     max_sigma_mm: float = Field(default=0.3, validation_alias="SETUPCAM_MAX_SIGMA_MM",

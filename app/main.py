@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import threading
 from contextlib import asynccontextmanager
 
 from fastapi import Depends, FastAPI, Request
@@ -19,16 +20,19 @@ from app.api.deps import path_ids_in_range
 from app.api.headers import SecurityHeaders
 from app.api.limits import RequestGuard, route_table
 from app.api.problems import problem
-from app.api.routes import (audit, auth, cameras, health, machines, models, pages, planning, rotary, setups, sheet,
-                            viewer)
+from app.api.routes import (audit, auth, cameras, health, jobs, machines, models, pages, planning, rotary, setups,
+                            sheet, viewer)
 from app.api.routes import docs as api_docs
 from app.config import Settings, get_settings
 from app.services.access import dummy_hash, ensure_first_admin
 from app.services.errors import ServiceError
 from app.services.events import EventBus
 from app.services.export import ExportWatch, reconcile_open_exports
-from app.services.jobs import JobContext, JobRunner
-from app.services.setups import run_setup_job, unfinished_setup_ids
+from app.services.job_kinds import KINDS
+from app.services.jobs import JobContext
+from app.services.queues import make_queue
+from app.services.setups import enqueue_orphaned_setups
+from app.services.sheet import SheetMonitors
 from app.services.throttle import LoginThrottle
 from app.store.db import make_engine, migrate, protect_data, session_scope
 from app.store.files import FileStore
@@ -61,14 +65,21 @@ def startup(app: FastAPI) -> None:
         with session_scope(app.state.engine) as session:
             load_example_library(session, app.state.files, settings.models_library_dir)
     app.state.events = EventBus(settings.webhooks, settings.mqtt_url, settings.mqtt_topic_prefix)
-    app.state.jobs = JobRunner(JobContext(app.state.engine, app.state.files, settings, app.state.events),
-                               settings.workers)
+    ctx = JobContext(app.state.engine, app.state.files, settings, app.state.events)
+    # the queue: Procrastinate on PostgreSQL, the job table polled on SQLite; jobs run here unless
+    # SETUPCAM_EMBEDDED_WORKER=false (then `setupcam worker` processes run them). Jobs a dead process
+    # left running are queued again by the workers' stalled-job recovery (heartbeats).
+    app.state.jobs = make_queue(ctx, KINDS, run_jobs=settings.embedded_worker, concurrency=settings.workers)
     with session_scope(app.state.engine) as session:
-        for setup_id in unfinished_setup_ids(session):
-            app.state.jobs.submit(run_setup_job, setup_id)
+        orphans = enqueue_orphaned_setups(session, settings)
+    for job_id in orphans:
+        app.state.jobs.push(job_id)
     # exports a previous run left pending / writing / unknown are settled by reading the controllers back
-    app.state.jobs.submit(reconcile_open_exports)
-    app.state.export_watch = ExportWatch(app.state.jobs.ctx, settings.export_watch_s).start()
+    threading.Thread(target=reconcile_open_exports, args=(ctx,), name="export-reconcile", daemon=True).start()
+    app.state.export_watch = ExportWatch(ctx, settings.export_watch_s).start()
+    # sheet monitors live as long as the service: those a previous run left running carry on
+    app.state.sheet_monitors = SheetMonitors(app.state.engine, app.state.files, app.state.events, sheet.decision_url)
+    app.state.sheet_monitors.resume()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -82,9 +93,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                           "data_dir": str(settings.data_dir)})
         yield
         stop_viewer(app)
-        monitors = getattr(app.state, "sheet_monitors", None)
-        if monitors is not None:
-            monitors.shutdown()
+        app.state.sheet_monitors.shutdown()  # their state stays 'running' in the database: the next start resumes them
         app.state.export_watch.stop()
         app.state.jobs.shutdown()
         app.state.events.close()
@@ -150,7 +159,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_error_schema(app)
 
     api_routers = (health.router, auth.router, models.router, cameras.router, machines.router, setups.router,
-                   audit.router, planning.router, rotary.router, sheet.router)
+                   audit.router, planning.router, rotary.router, sheet.router, jobs.router)
     for router in api_routers:
         app.include_router(router, prefix=API_PREFIX, dependencies=[Depends(path_ids_in_range)])
     # auth, origin and size are checked before any body is read

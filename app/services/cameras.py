@@ -10,7 +10,9 @@ import numpy as np
 from sqlmodel import Session, col, select
 
 from app.services.errors import Invalid, NotFound, Unavailable
+from app.services.jobs import JobRun, Outcome
 from app.sources import SourceError, make_source
+from app.store.db import session_scope
 from app.store.files import FileStore
 from app.store.models import Calibration, Camera, utcnow
 from app.vision import calibration as calib
@@ -111,29 +113,50 @@ def image_media_type(data: bytes) -> str:
     return "application/octet-stream"
 
 
-def calibrate_camera(session: Session, files: FileStore, camera_id: int, *, images: list[tuple[str, bytes]],
-                     board: dict, fix_aspect_ratio: bool = False,
-                     subpix_half_window_px: int | None = None) -> Calibration:
-    """Calibrate from board images; the run is stored (images included) whether it succeeds or not."""
-    cam = get_camera(session, camera_id)
+def prepare_calibration(session: Session, files: FileStore, camera_id: int, *, images: list[tuple[str, bytes]],
+                        board: dict, fix_aspect_ratio: bool = False,
+                        subpix_half_window_px: int | None = None) -> dict:
+    """Check what can be checked at once (camera, board, images present; 4xx with the reason) and
+    store the images: the calibration job's arguments (ids and sha256s, nothing decoded here)."""
+    get_camera(session, camera_id)
     if not images:
         raise Invalid("no images: upload at least 3 views of the board")
     try:
-        spec = calib.BoardSpec.model_validate(board)
+        calib.BoardSpec.model_validate(board)
     except ValueError as exc:
         raise Invalid(f"board: {_first_error(exc)}") from None
-    decoded = [read_image(data, f"image {name!r}") for name, data in images]
-    shas = [files.put(session, data, "image/jpeg") for _name, data in images]
-    result = calib.calibrate(decoded, spec, fix_aspect_ratio=fix_aspect_ratio, names=[n for n, _ in images],
+    return {"camera_id": camera_id, "board": board, "names": [n for n, _ in images],
+            "image_sha256": [files.put(session, data, "image/jpeg") for _name, data in images],
+            "fix_aspect_ratio": fix_aspect_ratio, "subpix_half_window_px": subpix_half_window_px}
+
+
+def run_calibration_job(run: JobRun, *, camera_id: int, board: dict, names: list[str], image_sha256: list[str],
+                        fix_aspect_ratio: bool = False, subpix_half_window_px: int | None = None) -> Outcome:
+    """The job: decode the stored views, calibrate, keep the run (images, per-view reasons) whether it
+    succeeds or not."""
+    ctx = run.ctx
+    spec = calib.BoardSpec.model_validate(board)
+    try:
+        decoded = [read_image(ctx.files.read(sha), f"image {name!r}") for name, sha in zip(names, image_sha256)]
+    except Invalid as exc:  # stored as a failed run, like too few usable views
+        return _store_calibration(run, camera_id, board, image_sha256, calib.CalibrationFailure(exc.detail, ()))
+    result = calib.calibrate(decoded, spec, fix_aspect_ratio=fix_aspect_ratio, names=names,
                              subpix_half_window_px=subpix_half_window_px)
+    return _store_calibration(run, camera_id, board, image_sha256, result)
+
+
+def _store_calibration(run: JobRun, camera_id: int, board: dict, shas: list[str], result: Any) -> Outcome:
+    run.check()  # a run that timed out or lost its job stores nothing
     ok = not isinstance(result, calib.CalibrationFailure)
-    row = Calibration(camera_id=cam.id, board=board, image_sha256=shas, ok=ok,
-                      reason="" if ok else result.reason, result=result.to_dict(),
-                      rms_px=getattr(result, "rms_px", None))
-    session.add(row)
-    session.flush()
-    log.info("calibration", extra={"camera_id": cam.id, "ok": ok, "rms_px": row.rms_px})
-    return row
+    reason = "" if ok else result.reason
+    row = Calibration(camera_id=camera_id, board=board, image_sha256=shas, ok=ok, reason=reason,
+                      result=result.to_dict(), rms_px=getattr(result, "rms_px", None))
+    with session_scope(run.ctx.engine) as session:
+        session.add(row)
+        session.flush()
+    log.info("calibration", extra={"camera_id": camera_id, "ok": ok, "rms_px": row.rms_px})
+    link = {"resource": "calibration", "id": row.id, "camera_id": camera_id}
+    return Outcome(ok, "" if ok else f"calibration {row.id} failed: {reason}", link)
 
 
 def _first_error(exc: ValueError) -> str:

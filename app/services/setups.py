@@ -21,22 +21,20 @@ from app.services import library
 from app.services.audit import audit
 from app.services.cameras import read_image, get_camera, grab_frame, image_media_type
 from app.services.errors import Conflict, Invalid, NotFound
-from app.services.jobs import JobContext
+from app.services.jobs import JobContext, JobRun, JobStopped, Outcome, create_job
 from app.services.machines import Limit, get_machine, machine_limit
 from app.services.setup_result import LocatedObject, SetupResult
 from app.store.db import session_scope
 from app.store.files import FileStore
-from app.store.models import Capture, Setup, utcnow
+from app.store.models import Capture, Job, Setup, utcnow
 from app.vision import object_pose
+from app.vision.image_header import ImageHeaderError, image_size
 from app.vision.localize import Candidate, draw_pose_overlay, localize, marker_labels_table, object_entry
 
 log = logging.getLogger(__name__)
 
 FINAL = ("located", "failed")
 LOCATED_KINDS = ("workpiece", "clamp", "support")   # what a setup looks for on the table
-# (glb sha256, kind) -> PreparedModel (a cache; revisions never change). The kind is part of the key:
-# a fixture is prepared standing as modelled only, a workpiece in all its resting states.
-_PREPARED: dict[tuple[str, str], Any] = {}
 
 
 def png_bytes(image: np.ndarray) -> bytes:
@@ -69,9 +67,13 @@ def create_setup(session: Session, files: FileStore, *, machine_id: int, camera_
     if grab:
         frame, origin = grab_frame(cam), "grab"
         data = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
-    else:
-        frame, origin, data = read_image(image), "upload", image
-    h, w = frame.shape[:2]
+        h, w = frame.shape[:2]
+    else:  # the size from the header: the decoding is the job's
+        origin, data = "upload", image
+        try:
+            w, h = image_size(data)
+        except ImageHeaderError as exc:
+            raise Invalid(f"image {exc}") from None
     if (w, h) != (cam.intrinsics["width"], cam.intrinsics["height"]):
         raise Invalid(f"image is {w} x {h} px but camera {cam.id} is calibrated for "
                       f"{cam.intrinsics['width']} x {cam.intrinsics['height']} px", code="image_size_mismatch")
@@ -100,9 +102,34 @@ def list_setups(session: Session, *, machine_id: int | None = None, limit: int =
     return list(session.exec(q.order_by(col(Setup.id).desc()).limit(limit)).all())
 
 
-def unfinished_setup_ids(session: Session) -> list[int]:
-    """Setups a previous run left queued or running (e.g. power cut): they are run again, nothing lost."""
-    return list(session.exec(select(Setup.id).where(col(Setup.status).in_(["queued", "running"]))).all())
+def enqueue_orphaned_setups(session: Session, settings) -> list[int]:
+    """Setups left queued or running with no job that will run them (made before jobs existed, or their
+    job ended without them): a new localisation job each. Returns the new job ids (to hand to the queue)."""
+    open_ids = {j.args.get("setup_id") for j in session.exec(
+        select(Job).where(Job.kind == "localize", col(Job.status).in_(["queued", "running"]))).all()}
+    new = []
+    for setup_id in session.exec(select(Setup.id).where(col(Setup.status).in_(["queued", "running"]))).all():
+        if setup_id not in open_ids:
+            new.append(create_job(session, "localize", {"setup_id": setup_id}, settings).id)
+    return new
+
+
+def fail_setup(ctx: JobContext, args: dict, reason: str) -> None:
+    """The setup's job failed without it (timeout, crash, its worker gone too often): say why."""
+    with session_scope(ctx.engine) as session:
+        s = session.get(Setup, args["setup_id"])
+        if s is not None and s.status not in FINAL:
+            s.status, s.reason, s.updated_at = "failed", reason[:2000], utcnow()
+            session.add(s)
+
+
+def requeue_setup(ctx: JobContext, args: dict) -> None:
+    """The setup's job went back to the queue (its worker died): the setup waits again, stages cleared."""
+    with session_scope(ctx.engine) as session:
+        s = session.get(Setup, args["setup_id"])
+        if s is not None and s.status not in FINAL:
+            s.status, s.stages, s.reason, s.updated_at = "queued", [], "", utcnow()
+            session.add(s)
 
 
 def _update(ctx: JobContext, setup_id: int, **fields: Any) -> None:
@@ -122,9 +149,12 @@ def _append_stage(ctx: JobContext, setup_id: int, record: dict) -> None:
         session.add(s)
 
 
-def library_candidates(session: Session, files: FileStore, model_refs: list[dict]) -> list:
+def library_candidates(session: Session, files: FileStore, model_refs: list[dict], cache: dict | None = None) -> list:
     """Library models to look for: the ones asked for, else every workpiece, clamp and support
-    (recognition). Fixtures carry their declared support surfaces (None: derived from the mesh)."""
+    (recognition). Fixtures carry their declared support surfaces (None: derived from the mesh).
+    ``cache`` (a worker's :attr:`JobContext.cache`) keeps prepared models by (glb sha256, kind): a
+    fixture is prepared standing as modelled only, a workpiece in all its resting states."""
+    cache = {} if cache is None else cache
     if not model_refs:
         rows, _ = library.list_models(session, limit=500)
         model_refs = [{"model_id": m.id, "revision": m.current_revision} for m in rows
@@ -134,7 +164,7 @@ def library_candidates(session: Session, files: FileStore, model_refs: list[dict
         m = library.get_model(session, ref["model_id"])
         rev = library.get_revision(session, m.id, ref["revision"])
         # Prepared edge models cost ~1 s each: keep them per geometry file (immutable, content-addressed).
-        prepared = _PREPARED.get((rev.glb_sha256, m.kind))
+        prepared = cache.get((rev.glb_sha256, m.kind))
         mesh = prepared.mesh if prepared is not None else load_mesh(files.read(rev.glb_sha256), "model.glb", "mm")
         cand = Candidate(name=m.name, mesh=mesh, kind=m.kind, model_id=m.id, revision=rev.revision,
                          T_obj_datum=np.asarray(rev.T_obj_datum) if rev.T_obj_datum else None,
@@ -142,30 +172,33 @@ def library_candidates(session: Session, files: FileStore, model_refs: list[dict
         if prepared is not None and prepared.name == m.name:
             cand.prepared = prepared
         else:
-            _PREPARED[(rev.glb_sha256, m.kind)] = cand.prepare()
+            cache[(rev.glb_sha256, m.kind)] = cand.prepare()
         out.append(cand)
     return out
 
 
-def run_setup_job(ctx: JobContext, setup_id: int) -> None:
+def run_setup_job(run: JobRun, setup_id: int) -> Outcome:
     """The job: localise table and objects in the stored capture; record stages; end located or failed."""
+    ctx = run.ctx
     with session_scope(ctx.engine) as session:
         s = get_setup(session, setup_id)
         if s.status in FINAL:
-            return
+            return Outcome(s.status == "located", s.reason, {"resource": "setup", "id": setup_id})
         machine = get_machine(session, s.machine_id)
         table_rev = library.get_revision(session, machine.table_model_id, machine.table_revision)
         layout = table_rev.fiducials
         capture = session.get(Capture, s.capture_id)
         image = read_image(ctx.files.read(capture.image_sha256))
         recognise = not s.models
-        candidates = library_candidates(session, ctx.files, s.models)
-        (table,) = library_candidates(session, ctx.files, [{"model_id": machine.table_model_id, "revision": table_rev.revision}])
+        candidates = library_candidates(session, ctx.files, s.models, ctx.cache)
+        (table,) = library_candidates(session, ctx.files, [{"model_id": machine.table_model_id,
+                                                            "revision": table_rev.revision}], ctx.cache)
         intr = s.intrinsics
     _update(ctx, setup_id, status="running", stages=[], reason="")
     log.info("setup running", extra={"setup_id": setup_id, "candidates": len(candidates)})
 
     def on_stage(stage) -> None:
+        run.check()  # timed out or taken over by another worker: stop at this stage
         rec = {"name": stage.name, "ok": stage.ok, "ms": round(stage.ms, 1), "message": stage.message,
                "data": stage.data}
         if stage.image is not None:
@@ -178,11 +211,14 @@ def run_setup_job(ctx: JobContext, setup_id: int) -> None:
         # recognition picks among the whole library and keeps the plain search
         result = localize(image, np.asarray(intr["K"]), np.asarray(intr["dist"]), layout, candidates,
                           recognise=recognise, on_stage=on_stage, table_model=table, chain=not recognise)
+    except JobStopped:
+        raise
     except Exception as exc:  # noqa: BLE001 - a crash must end the job as failed, with a reason
         log.exception("setup crashed", extra={"setup_id": setup_id})
         _update(ctx, setup_id, status="failed", reason=f"internal error in localisation ({exc.__class__.__name__}); "
                                                          "it has been logged")
-        return
+        return Outcome(False, "internal error in localisation", {"resource": "setup", "id": setup_id})
+    run.check()  # a run that timed out or lost its job must not write a result
     payload = review_fields(result.to_dict(), machine, ctx.settings)
     with session_scope(ctx.engine) as session:
         payload["overlay_sha256"] = ctx.files.put(session, png_bytes(result.overlay), "image/png")
@@ -195,6 +231,7 @@ def run_setup_job(ctx: JobContext, setup_id: int) -> None:
                            {"setup_id": setup_id, "reason": result.reason, "objects": table_obj_summary(payload),
                             "offset": payload.get("offset")})
     log.info("setup finished", extra={"setup_id": setup_id, "ok": result.ok, "reason": result.reason})
+    return Outcome(result.ok, result.reason, {"resource": "setup", "id": setup_id})
 
 
 def table_obj_summary(result: dict) -> list[dict]:

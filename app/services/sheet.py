@@ -35,12 +35,15 @@ from app.services.audit import audit
 from app.services.cameras import read_image, get_camera, grab_frame, image_media_type
 from app.services.controller_write import check_slot, guarded_write, open_controller, travel_reasons
 from app.services.errors import Conflict, Invalid, NotFound, Unavailable
+from app.services.jobs import JobRun, Outcome
 from app.services.machines import get_machine
 from app.sources import SourceError, make_source
+from app.store.db import session_scope
 from app.store.files import FileStore
 from app.store.models import SheetAlignment, SheetBedPose, SheetMonitor, SheetMonitorEvent, utcnow
 from app.vision.bed_scale import BedPlane
 from app.vision.drift import CORNER_NOT_FOUND, DriftMonitor, FRAME_MISSING, REDATUM, STOP, draw_drift
+from app.vision.image_header import ImageHeaderError, image_size
 from app.vision.intrinsics import parse_intrinsics
 from app.vision.sheet import MAX_MARGIN_MM, draw_sheet, find_sheet
 
@@ -95,10 +98,11 @@ def _jpeg(img: np.ndarray, quality: int = 90) -> bytes:
     return cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])[1].tobytes()
 
 
-def create_alignment(session: Session, files: FileStore, events, *, machine_id: int, camera_id: int,
-                     image: bytes | None, grab: bool, T_cam_bed, thickness_mm: float, margin_mm: float,
-                     by: str | None) -> SheetAlignment:
-    """Find the sheet in an uploaded or grabbed image; the attempt is stored whether found or not."""
+def prepare_alignment(session: Session, files: FileStore, *, machine_id: int, camera_id: int,
+                      image: bytes | None, grab: bool, T_cam_bed, thickness_mm: float, margin_mm: float,
+                      by: str | None) -> dict:
+    """Check the request at once (4xx with the reason; the image's size from its header), grab or take
+    the image and store it: the alignment job's arguments. Nothing is decoded here."""
     machine = get_machine(session, machine_id)
     cam = get_camera(session, camera_id)
     if not cam.intrinsics:
@@ -110,32 +114,46 @@ def create_alignment(session: Session, files: FileStore, events, *, machine_id: 
     T = _check_bed_pose(T_cam_bed) if T_cam_bed is not None else np.asarray(get_bed_pose(session, cam.id).T_cam_bed)
     if (image is None) == (not grab):
         raise Invalid("give either an image file or grab=true (not both, not neither)")
-    if grab:
-        img = grab_frame(cam)
-        data = _jpeg(img, 95)
-    else:
-        img = read_image(image, "image")
-        data = image
+    data = _jpeg(grab_frame(cam), 95) if grab else image
+    try:
+        width, height = image_size(data)
+    except ImageHeaderError as exc:
+        raise Invalid(f"image {exc}") from None
     w, h = cam.intrinsics["width"], cam.intrinsics["height"]
-    if (img.shape[1], img.shape[0]) != (w, h):
-        raise Invalid(f"image is {img.shape[1]} x {img.shape[0]} px but camera {cam.id}'s intrinsics are for "
+    if (width, height) != (w, h):
+        raise Invalid(f"image is {width} x {height} px but camera {cam.id}'s intrinsics are for "
                       f"{w} x {h} px; use the calibration of this camera and resolution")
-    plane = _plane(cam.intrinsics, T, thickness_mm)
-    result = find_sheet(img, plane, margin_mm=margin_mm)
-    row = SheetAlignment(
-        machine_id=machine.id, camera_id=cam.id, intrinsics=cam.intrinsics, T_cam_bed=T.tolist(),
-        thickness_mm=thickness_mm, margin_mm=margin_mm, image_sha256=files.put(session, data, image_media_type(data)),
-        picture_sha256=files.put(session, _png(draw_sheet(img, result)), "image/png"),
-        origin="grab" if grab else "upload", status="located" if result else "failed",
-        reason="" if result else result.reason, result=result.as_dict(), created_by=by)
-    session.add(row)
-    session.flush()
+    _plane(cam.intrinsics, T, thickness_mm)  # a pose that puts the camera below the bed: 422 now
+    return {"machine_id": machine.id, "camera_id": cam.id, "T_cam_bed": T.tolist(), "thickness_mm": thickness_mm,
+            "margin_mm": margin_mm, "origin": "grab" if grab else "upload", "by": by,
+            "image_sha256": files.put(session, data, image_media_type(data))}
+
+
+def run_alignment_job(run: JobRun, *, machine_id: int, camera_id: int, T_cam_bed: list, thickness_mm: float,
+                      margin_mm: float, origin: str, by: str | None, image_sha256: str) -> Outcome:
+    """The job: find the sheet in the stored image; the attempt is stored whether found or not."""
+    ctx = run.ctx
+    with Session(ctx.engine) as session:
+        intrinsics = get_camera(session, camera_id).intrinsics
+    img = read_image(ctx.files.read(image_sha256), "image")
+    result = find_sheet(img, _plane(intrinsics, T_cam_bed, thickness_mm), margin_mm=margin_mm)
+    run.check()  # a run that timed out or lost its job stores nothing
+    with session_scope(ctx.engine) as session:
+        row = SheetAlignment(
+            machine_id=machine_id, camera_id=camera_id, intrinsics=intrinsics, T_cam_bed=T_cam_bed,
+            thickness_mm=thickness_mm, margin_mm=margin_mm, image_sha256=image_sha256,
+            picture_sha256=ctx.files.put(session, _png(draw_sheet(img, result)), "image/png"), origin=origin,
+            status="located" if result else "failed", reason="" if result else result.reason,
+            result=result.as_dict(), created_by=by)
+        session.add(row)
+        session.flush()
     log.info("sheet alignment", extra={"alignment_id": row.id, "status": row.status, "reason": row.reason})
-    events.publish("sheet.located" if result else "sheet.failed",
-                   {"alignment_id": row.id, "machine_id": machine.id, "camera_id": cam.id,
-                    **({"offset": result.offset.as_dict(), "angle_deg": result.angle_deg} if result
-                       else {"reason": row.reason})})
-    return row
+    if ctx.events is not None:
+        ctx.events.publish("sheet.located" if result else "sheet.failed",
+                           {"alignment_id": row.id, "machine_id": machine_id, "camera_id": camera_id,
+                            **({"offset": result.offset.as_dict(), "angle_deg": result.angle_deg} if result
+                               else {"reason": row.reason})})
+    return Outcome(bool(result), row.reason, {"resource": "sheet_alignment", "id": row.id})
 
 
 def get_alignment(session: Session, alignment_id: int) -> SheetAlignment:
@@ -272,13 +290,50 @@ class SheetMonitors:
         self._runs: dict[int, _Runtime] = {}
         self._lock = threading.Lock()
 
-    @staticmethod
-    def finish_stale(session: Session) -> None:
-        """Monitors left 'running' by an earlier run of the service lost their drift state: finish them."""
-        for mon in session.exec(select(SheetMonitor).where(SheetMonitor.state == "running")).all():
-            mon.state, mon.reason, mon.updated_at = "finished", "the service restarted; start a new monitor", utcnow()
-            session.add(mon)
-        session.flush()
+    def resume(self) -> list[int]:
+        """At start-up: the monitors left 'running' by an earlier run of the service carry on from their
+        stored drift state (and poll again); one that cannot (its alignment picture or camera source is
+        gone) is finished with the reason. Returns the ids resumed."""
+        resumed = []
+        with Session(self.engine, expire_on_commit=False) as session:
+            rows = session.exec(select(SheetMonitor).where(SheetMonitor.state == "running")).all()
+            for mon in rows:
+                try:
+                    align = get_alignment(session, mon.alignment_id)
+                    drift = self._drift(align, mon.l1_mm, mon.l2_mm, mon.roi_px)
+                    if mon.drift_state:
+                        drift.restore(mon.drift_state)
+                    cam = get_camera(session, align.camera_id)
+                    source = make_source(cam.source) if mon.interval_s is not None else None
+                except Exception as exc:  # noqa: BLE001 - whatever broke, the monitor says so and stops
+                    mon.state, mon.updated_at = "finished", utcnow()
+                    mon.reason = f"could not resume after the service restarted: {exc}"[:2000]
+                    session.add(mon)
+                    log.warning("sheet monitor not resumed", extra={"monitor_id": mon.id, "reason": mon.reason})
+                    continue
+                self._run(mon.id, drift, source, mon.interval_s)
+                resumed.append(mon.id)
+            session.commit()
+        if resumed:
+            log.info("sheet monitors resumed", extra={"monitor_ids": resumed})
+        return resumed
+
+    def _drift(self, align: SheetAlignment, l1_mm: float, l2_mm: float, roi_px: int) -> DriftMonitor:
+        """A drift monitor of a located alignment, its start corners confirmed on the alignment's picture."""
+        image = read_image(self.files.read(align.image_sha256), "alignment image")
+        plane = _plane(align.intrinsics, align.T_cam_bed, align.thickness_mm)
+        return DriftMonitor(np.asarray(align.result["corners_px"]), plane, l1_mm, l2_mm, margin_mm=align.margin_mm,
+                            roi_px=roi_px, start_frame=image)
+
+    def _run(self, monitor_id: int, drift: DriftMonitor, source, interval_s: float | None) -> _Runtime:
+        rt = _Runtime(monitor_id, drift)
+        with self._lock:
+            self._runs[monitor_id] = rt
+        if source is not None:
+            rt.thread = threading.Thread(target=self._poll, args=(rt, source, interval_s),
+                                         name=f"sheet-monitor-{monitor_id}", daemon=True)
+            rt.thread.start()
+        return rt
 
     # ------------------------------------------------------------------ start / stop
     def start(self, session: Session, *, alignment_id: int, l1_mm: float, l2_mm: float, interval_s: float | None,
@@ -308,11 +363,8 @@ class SheetMonitors:
                               "configure a source or post frames (interval_s = null)")
 
             source = make_source(cam.source)
-        image = read_image(self.files.read(row.image_sha256), "alignment image")
-        plane = _plane(row.intrinsics, row.T_cam_bed, row.thickness_mm)
         try:
-            drift = DriftMonitor(np.asarray(row.result["corners_px"]), plane, l1_mm, l2_mm, margin_mm=row.margin_mm,
-                                 roi_px=roi_px, start_frame=image)
+            drift = self._drift(row, l1_mm, l2_mm, roi_px)
         except ValueError as exc:
             raise Invalid(f"monitor not started: {exc}") from None
         mon = SheetMonitor(alignment_id=row.id, l1_mm=l1_mm, l2_mm=l2_mm, interval_s=interval_s, slot=slot,
@@ -322,13 +374,7 @@ class SheetMonitors:
         audit(session, actor, "sheet.monitor_start", machine_id=row.machine_id, alignment_id=row.id,
               monitor_id=mon.id, l1_mm=l1_mm, l2_mm=l2_mm, slot=slot)
         session.commit()
-        rt = _Runtime(mon.id, drift)
-        with self._lock:
-            self._runs[mon.id] = rt
-        if source is not None:
-            rt.thread = threading.Thread(target=self._poll, args=(rt, source, interval_s),
-                                         name=f"sheet-monitor-{mon.id}", daemon=True)
-            rt.thread.start()
+        self._run(mon.id, drift, source, interval_s)
         log.info("sheet monitor started", extra={"monitor_id": mon.id, "alignment_id": row.id})
         return mon
 
@@ -435,6 +481,7 @@ class SheetMonitors:
                                        frame_sha256=frame_sha, picture_sha256=picture_sha)
                 session.add(ev)
                 mon.frames += 1
+                mon.drift_state = rt.drift.state()  # in the row: the monitor resumes after a restart
                 mon.updated_at = utcnow()
                 session.add(mon)
                 session.flush()
@@ -486,21 +533,6 @@ def _controller_call(machine, what: str) -> str:
         return f"failed: {exc}"
     finally:
         controller.close()
-
-
-_REGISTRY_LOCK = threading.Lock()
-
-
-def registry(app_state, session: Session, decision_url: DecisionUrl) -> SheetMonitors:
-    """The service's :class:`SheetMonitors`, made on first use, which finishes (in ``session``) the monitors
-    left 'running' by an earlier run of the service."""
-    with _REGISTRY_LOCK:
-        reg = getattr(app_state, "sheet_monitors", None)
-        if reg is None:
-            SheetMonitors.finish_stale(session)
-            reg = app_state.sheet_monitors = SheetMonitors(app_state.engine, app_state.files, app_state.events,
-                                                             decision_url)
-    return reg
 
 
 def get_monitor(session: Session, monitor_id: int) -> SheetMonitor:

@@ -7,9 +7,11 @@ import os
 import tempfile
 from pathlib import Path
 
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlmodel import Session
 
-from app.store.models import StoredFile
+from app.store.models import StoredFile, utcnow
 
 
 class FileStore:
@@ -33,8 +35,11 @@ class FileStore:
                 fh.write(data)
             os.replace(tmp, target)  # atomic: a reader never sees half a file
         if session.get(StoredFile, sha) is None:
-            session.add(StoredFile(sha256=sha, size_bytes=len(data), media_type=media_type))
-            session.flush()
+            # INSERT .. ON CONFLICT DO NOTHING: two workers storing the same bytes at the same moment (the
+            # same stage picture of two setups of one photo) both succeed, neither fails on the key
+            values = {"sha256": sha, "size_bytes": len(data), "media_type": media_type, "created_at": utcnow()}
+            insert = pg_insert if session.get_bind().dialect.name == "postgresql" else sqlite_insert
+            session.execute(insert(StoredFile).values(**values).on_conflict_do_nothing(index_elements=["sha256"]))
         return sha
 
     def read(self, sha256: str) -> bytes:

@@ -308,6 +308,8 @@ class SheetMonitor(SQLModel, table=True):
     state: str = Field(default="running", max_length=20, index=True, description="running | stopped | finished")
     reason: str = Field(default="", max_length=2000)
     last_decision: dict | None = json_field()
+    drift_state: dict | None = json_field(description="DriftMonitor.state() after the last frame: resumes after a "
+                                                      "restart")
     frames: int = 0
     created_by: str | None = Field(default=None, max_length=200)
     created_at: datetime = Field(default_factory=utcnow)
@@ -329,3 +331,31 @@ class SheetMonitorEvent(SQLModel, table=True):
     frame_sha256: str | None = Field(default=None, max_length=64, description="the frame as received (None: no frame)")
     picture_sha256: str | None = Field(default=None, max_length=64, description="draw_drift picture (PNG)")
     at: datetime = Field(default_factory=utcnow)
+
+
+# --------------------------------------------------------------------------------------- jobs
+class Job(SQLModel, table=True):
+    """One piece of long work (localisation, sheet alignment, calibration, rotary run) and where it is.
+
+    ``args`` holds ids and small parameters only (images are in the file store by sha256); ``attempts``
+    counts the starts and is the claim token: a run that lost its claim (timed out, or its worker was
+    declared dead and another took the job) cannot finish the row. ``heartbeat_at`` is renewed while
+    it runs; a stale one means its worker died."""
+
+    __tablename__ = "job"
+    id: int | None = Field(default=None, primary_key=True)
+    kind: str = Field(max_length=40, index=True, description="localize | sheet_align | calibrate | rotary")
+    args: dict = json_field(default_factory=dict, nullable=False)
+    status: str = Field(default="queued", max_length=20, index=True, description="queued | running | done | failed")
+    reason: str = Field(default="", max_length=2000)
+    result: dict | None = json_field(description="what the job made: {resource, id, url}")
+    attempts: int = 0
+    max_attempts: int = 3
+    timeout_s: float = 600.0
+    worker: str | None = Field(default=None, max_length=200, description="host:pid/thread of the current run")
+    heartbeat_at: datetime | None = None
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+    created_by: str | None = Field(default=None, max_length=200)
+    created_at: datetime = Field(default_factory=utcnow)
+    updated_at: datetime = Field(default_factory=utcnow)

@@ -169,6 +169,20 @@ class DriftMonitor:
         self._stopped: str | None = None
         self._frame = 0
 
+    def state(self) -> dict:
+        """What the monitor has learnt since its start (tracked corners in ideal px, the datum in bed mm
+        after re-datums, the frame count, a latched stop): JSON, so that a monitor resumes after a restart."""
+        return {"pos_ideal": self._pos_ideal.tolist(), "datum_bed": self._datum_bed.tolist(), "frame": self._frame,
+                "stopped": self._stopped}
+
+    def restore(self, state: dict) -> None:
+        """Continue from :meth:`state` (the start corners and thresholds are the constructor's)."""
+        self.reset()  # edge directions and the start in bed mm come from the start corners, as at the start
+        self._pos_ideal = np.asarray(state["pos_ideal"], np.float64).reshape(4, 2)
+        self._datum_bed = np.asarray(state["datum_bed"], np.float64).reshape(4, 2)
+        self._frame = int(state["frame"])
+        self._stopped = state.get("stopped")
+
     @property
     def datum_corners_bed_mm(self) -> np.ndarray:
         """The corners (4, 2) bed mm that errors are measured against (start, or the last redatum)."""

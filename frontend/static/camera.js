@@ -59,11 +59,13 @@ $("calibrate").addEventListener("click", async () => {
   say("#msg", "Calibrating: finding the board in every picture…", "info");
   $("calibrate").disabled = true;
   try {
-    showRun(await api(`/api/v1/cameras/${$("camera").value}/calibrations`, { method: "POST", body: form }));
+    const accepted = await api(`/api/v1/cameras/${$("camera").value}/calibrations`, { method: "POST", body: form });
+    const { job, resource } = await jobResult(accepted);
+    if (resource) showRun(resource);
+    if (job.status !== "done") throw new Error(job.reason);
     say("#msg", "Done. Check the errors and the coverage, then press “Use this calibration”.", "ok");
   } catch (e) {
     say("#msg", e.code === "admin_required" ? "Only an admin may calibrate cameras. Ask your supervisor." : e.message, "bad");
-    try { const runs = await api(`/api/v1/cameras/${$("camera").value}/calibrations`); if (runs.length) showRun(runs[runs.length - 1]); } catch (e2) { /* keep the message */ }
   } finally { $("calibrate").disabled = false; }
 });
 $("accept").addEventListener("click", async () => {

@@ -41,6 +41,18 @@ function postJSON(path, body) {
   return api(path, { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
 }
 
+/** Wait for a job the service accepted (202: {job_url, ...}) and read what it made.
+ *  Resolves to {job, resource}: resource is null when the job made nothing (then job.reason says why). */
+async function jobResult(accepted, pollMs = 300) {
+  let job = await api(accepted.job_url);
+  while (job.status !== "done" && job.status !== "failed") {
+    await new Promise((resolve) => setTimeout(resolve, pollMs));
+    job = await api(accepted.job_url);
+  }
+  const resource = job.result && job.result.url ? await api(job.result.url) : null;
+  return { job, resource };
+}
+
 /** Show a sentence in a message box: kind = info | ok | bad | warn. */
 function say(el, text, kind = "info") {
   if (typeof el === "string") el = document.querySelector(el);

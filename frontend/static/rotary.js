@@ -103,7 +103,8 @@ async function measure() {
   btn.textContent = "Measuring…";
   say("#msg", `Measuring ${chosen.length} pictures, this takes a few seconds…`, "info");
   try {
-    const run = await api("/api/v1/rotary/runs", { method: "POST", body: form });
+    const { job, resource: run } = await jobResult(await api("/api/v1/rotary/runs", { method: "POST", body: form }));
+    if (!run) throw new Error(job.reason);
     say("#msg", run.ok ? "Measured." : `Not measured: ${run.reason}`, run.ok ? "ok" : "bad");
     history.replaceState(null, "", `/rotary?run=${run.id}`);
     showRun(run);

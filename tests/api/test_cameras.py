@@ -10,6 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.support.jobs import settled, wait_job
+
 INTR = {"width": 640, "height": 480, "K": [[500, 0, 320], [0, 500, 240], [0, 0, 1]], "dist": [0, 0, 0, 0, 0]}
 
 
@@ -92,7 +94,10 @@ def test_calibration_reproduces_opencv_reference(client, external_data):
     # fx = fy = 535.9, cx = 342.3, cy = 235.6, RMS 0.39 px (left_intrinsics.yml).
     r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations", files=files,
                     data={"board": json.dumps(board), "fix_aspect_ratio": "true", "subpix_window_px": "11"})
-    assert r.status_code == 201, r.text
+    assert r.status_code == 202, r.text  # a job; its result is the calibration run
+    assert r.json()["job_url"] == f"/api/v1/jobs/{r.json()['job_id']}"
+    r = settled(client, r)
+    assert r.status_code == 200, r.text
     ref = r.json()
     K = np.array(ref["result"]["intrinsics"]["K"])
     assert K[0, 0] == pytest.approx(535.9, abs=1.5) and K[1, 1] == pytest.approx(K[0, 0], rel=1e-9)
@@ -102,7 +107,7 @@ def test_calibration_reproduces_opencv_reference(client, external_data):
     # neighbours: lower RMS, focal length within 3.5 px of the reference.
     r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations", files=files,
                     data={"board": json.dumps(board), "fix_aspect_ratio": "true"})
-    cal = r.json()
+    cal = settled(client, r).json()
     assert cal["result"]["intrinsics"]["K"][0][0] == pytest.approx(535.9, abs=3.5)
     assert cal["rms_px"] < 0.25 < ref["rms_px"]
     r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations/{cal['id']}/accept")
@@ -117,8 +122,10 @@ def test_calibration_refuses_too_few_views(client, external_data):
     files = [("images", (p.name, p.read_bytes(), "image/jpeg")) for p in sorted(folder.glob("left0[1-2].jpg"))]
     board = {"kind": "chessboard", "inner_corners": [9, 6], "square_mm": 25.0}
     r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations", files=files, data={"board": json.dumps(board)})
-    assert r.status_code == 422, r.text
-    assert "failed" in r.json()["detail"] and "usable" in r.json()["detail"]
+    assert r.status_code == 202, r.text
+    job = wait_job(client, r.json())  # the job fails with the reason and still links the stored run
+    assert job["status"] == "failed" and "usable" in job["reason"], job
+    assert job["result"]["url"] == f"/api/v1/cameras/{cam['id']}/calibrations/{job['result']['id']}"
     stored = client.get(f"/api/v1/cameras/{cam['id']}/calibrations").json()
     assert len(stored) == 1 and not stored[0]["ok"], "the failed run is kept with its reason"
 

@@ -8,6 +8,7 @@ import pytest
 
 from app.synth.rotary_images import ErrorCurve, RotaryScene, generate_run, true_errors_arcsec
 from app.vision.rotary_target import default_target
+from tests.support.jobs import settled
 
 ANGLES = [0, 30, 60, 90, 120, 90, 60, 30, 0]
 
@@ -26,7 +27,9 @@ def test_rotary_run_recovers_the_injected_error(client, run_images):
     files = [("images", (f"a{i}.png", cv2.imencode(".png", s.image)[1].tobytes(), "image/png")) for i, s in enumerate(shots)]
     r = client.post("/api/v1/rotary/runs", files=files,
                     data={"camera_id": str(cam["id"]), "angles_deg": ",".join(map(str, ANGLES))})
-    assert r.status_code == 201, r.text
+    assert r.status_code == 202, r.text  # a job; its result is the run
+    r = settled(client, r)
+    assert r.status_code == 200, r.text
     run = r.json()
     assert run["ok"], run["reason"]
     err = np.array(run["result"]["error_arcsec"]) - true_errors_arcsec(shots)

@@ -7,6 +7,7 @@ re-datum and the stop of a running program. A camera-polled monitor reads a tmp 
 from __future__ import annotations
 
 import json
+import shutil
 import threading
 import time
 
@@ -16,8 +17,9 @@ import numpy as np
 import pytest
 
 from app.synth.bed_images import bed_camera, drift_sequence, render_bed_image, scene_variant
+from tests.support.jobs import settled
 from tests.support.factories import make_machine
-from tests.support.live_server import live_server
+from tests.support.live_server import LiveServer, live_server
 
 pytestmark = pytest.mark.integration  # a live server; LinuxCNC where a controller is involved
 
@@ -64,7 +66,8 @@ def align(client, machine_id, camera_id, image_bytes, margin_mm=0.0, pose=True):
     data = {"machine_id": machine_id, "camera_id": camera_id, "thickness_mm": 3.0, "margin_mm": margin_mm}
     if pose:
         data["T_cam_bed"] = json.dumps(CAM.T_cam_bed.tolist())
-    return client.post("/api/v1/sheet/alignments", data=data, files={"image": ("bed.jpg", image_bytes)})
+    # a job: refused at once (4xx) or the alignment it made once it ran (200)
+    return settled(client, client.post("/api/v1/sheet/alignments", data=data, files={"image": ("bed.jpg", image_bytes)}))
 
 
 def expected_origin(corners_mm: np.ndarray, margin_mm: float) -> np.ndarray:
@@ -75,7 +78,7 @@ def expected_origin(corners_mm: np.ndarray, margin_mm: float) -> np.ndarray:
 def test_alignment_matches_ground_truth_and_margin(server, camera, dry_machine, bed_image):
     with server.client("mes") as c:
         r = align(c, dry_machine["id"], camera["id"], _jpg(bed_image.image), margin_mm=10.0)
-        assert r.status_code == 201, r.text
+        assert r.status_code == 200, r.text
         a = r.json()
         assert a["status"] == "located", a["reason"]
         res = a["result"]
@@ -100,7 +103,7 @@ def test_failed_alignment_says_why_and_bed_pose_per_camera(server, camera, dry_m
     blank = np.full((600, 800, 3), 90, np.uint8)
     with server.client("admin") as c:
         r = align(c, dry_machine["id"], camera["id"], _jpg(blank))
-        assert r.status_code == 201 and r.json()["status"] == "failed"
+        assert r.status_code == 200 and r.json()["status"] == "failed"
         assert "sheet" in r.json()["reason"] and r.json()["result"]["stage"]
         bad = np.eye(4)
         bad[0, 0] = 2
@@ -109,7 +112,7 @@ def test_failed_alignment_says_why_and_bed_pose_per_camera(server, camera, dry_m
         assert c.put(f"/api/v1/sheet/cameras/{camera['id']}/bed-pose",
                      json={"T_cam_bed": CAM.T_cam_bed.tolist()}).status_code == 200
         r = align(c, dry_machine["id"], camera["id"], _jpg(bed_image.image), pose=False)
-        assert r.status_code == 201 and r.json()["status"] == "located"
+        assert r.status_code == 200 and r.json()["status"] == "located"
         assert np.allclose(r.json()["T_cam_bed"], CAM.T_cam_bed)
 
 
@@ -261,7 +264,8 @@ def test_camera_polled_monitor_from_a_folder(server, dry_machine, bed_image, tmp
         r = c.post("/api/v1/sheet/alignments", data={"machine_id": dry_machine["id"], "camera_id": cam["id"],
                                                      "thickness_mm": 3.0, "grab": "true",
                                                      "T_cam_bed": json.dumps(CAM.T_cam_bed.tolist())})
-        assert r.status_code == 201 and r.json()["status"] == "located", r.text
+        r = settled(c, r)
+        assert r.status_code == 200 and r.json()["status"] == "located", r.text
         aid = r.json()["id"]
         r = c.post("/api/v1/sheet/monitors", json={"alignment_id": aid, "l1_mm": 1.0, "l2_mm": 4.0, "interval_s": 0.2})
         assert r.status_code == 409 and "not confirmed" in r.json()["detail"]
@@ -358,9 +362,9 @@ def test_redatum_during_a_program_holds_it_and_unseen_frames_hold_it(server, lcn
         assert {"sheet.redatum.read_failed", "sheet.redatum_pause", "sheet.unseen_hold", "sheet.operator_stop"} <= actions
 
 
-def test_a_restart_finishes_running_monitors(tmp_path, bed_image):
-    """The drift state lives in the service process: after a restart a 'running' monitor says it ended.
-    (A restart is simulated by dropping the service's monitor registry, which is all a new process lacks.)"""
+def test_a_monitor_that_cannot_resume_after_a_restart_says_why(tmp_path, bed_image):
+    """Monitors resume after a restart from their stored drift state (tests/jobs/test_monitor_resume.py);
+    one whose alignment picture is gone cannot, and ends 'finished' with the reason."""
     with live_server(tmp_path, "sqlite") as srv:
         with srv.client("admin") as c:
             cam = c.post("/api/v1/cameras", json={"name": "bed cam", "intrinsics": CAM.intrinsics_dict()}).json()
@@ -370,7 +374,15 @@ def test_a_restart_finishes_running_monitors(tmp_path, bed_image):
             c.post(f"/api/v1/sheet/alignments/{aid}/confirm")
             mid = c.post("/api/v1/sheet/monitors", json={"alignment_id": aid, "l1_mm": 1.0, "l2_mm": 4.0}).json()["id"]
             assert c.get(f"/api/v1/sheet/monitors/{mid}").json()["state"] == "running"
-            del srv.app.state.sheet_monitors
-            mon = c.get(f"/api/v1/sheet/monitors/{mid}").json()
-            assert mon["state"] == "finished" and "restarted" in mon["reason"]
-            assert c.post(f"/api/v1/sheet/monitors/{mid}/frames").status_code == 409
+        srv.stop()
+        shutil.rmtree(srv.settings.files_dir)  # the alignment's picture with it
+        again = LiveServer(srv.settings).start()
+        try:
+            again.tokens = srv.tokens
+            with again.client("operator") as c:
+                mon = c.get(f"/api/v1/sheet/monitors/{mid}").json()
+                assert mon["state"] == "finished", mon
+                assert mon["reason"].startswith("could not resume after the service restarted"), mon["reason"]
+                assert c.post(f"/api/v1/sheet/monitors/{mid}/frames").status_code == 409
+        finally:
+            again.stop()

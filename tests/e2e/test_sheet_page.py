@@ -8,6 +8,7 @@ import cv2
 import pytest
 
 from app.synth.bed_images import bed_camera, drift_sequence, render_bed_image, scene_variant
+from tests.support.jobs import settled
 from tests.support.factories import make_machine
 from tests.support.browser import ARTIFACTS, signed_in_page, skip_without_chromium
 from tests.support.live_server import live_server
@@ -47,7 +48,8 @@ def test_sheet_page_shows_live_decisions_chart_and_stops(tmp_path):
             a = c.post("/api/v1/sheet/alignments", data={
                 "machine_id": machine["id"], "camera_id": cam["id"], "thickness_mm": 3.0,
                 "T_cam_bed": json.dumps(CAM.T_cam_bed.tolist())},
-                files={"image": ("bed.jpg", _jpg(render_bed_image(SCENE, CAM).image))}).json()
+                files={"image": ("bed.jpg", _jpg(render_bed_image(SCENE, CAM).image))})
+            a = settled(c, a).json()
             c.post(f"/api/v1/sheet/alignments/{a['id']}/confirm")
             mid = c.post("/api/v1/sheet/monitors", json={"alignment_id": a["id"], "l1_mm": 1.0, "l2_mm": 4.0}).json()["id"]
             seq = drift_sequence(SCENE, CAM, [(0, 0, 0), (0.4, 0, 0), (1.5, 0.5, 0.1)])

@@ -6,16 +6,17 @@ from datetime import datetime
 from typing import Annotated, Any
 
 import cv2
-from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
 from pydantic import BaseModel, Field
+from starlette.concurrency import run_in_threadpool
 
 from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
+from app.api.routes.jobs import JobAccepted, enqueue
 from app.api.uploads import json_form, read_uploads
 from app.services import cameras as svc
 from app.services import printing
 from app.services.cameras import Intrinsics
 from app.services.audit import audit
-from app.services.errors import Invalid
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], dependencies=[Depends(get_principal)])
 
@@ -114,11 +115,11 @@ def snapshot(session: SessionDep, camera_id: int) -> Response:
                     headers={"X-Image-Width": str(frame.shape[1]), "X-Image-Height": str(frame.shape[0])})
 
 
-@router.post("/{camera_id}/calibrations", status_code=status.HTTP_201_CREATED, response_model=CalibrationPublic,
-             summary="Calibrate from images of a chessboard or ChArUco board",
+@router.post("/{camera_id}/calibrations", status_code=status.HTTP_202_ACCEPTED, response_model=JobAccepted,
+             summary="Calibrate from images of a chessboard or ChArUco board (a job; its result is the run)",
              responses={422: {"description": "bad board description, unreadable image, or too few usable views"}})
 async def calibrate(
-    session: SessionDep, files: FilesDep, settings: SettingsDep, _admin: AdminPrincipal, camera_id: int,
+    request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep, admin: AdminPrincipal, camera_id: int,
     images: Annotated[list[UploadFile], File(description="Board images (JPEG/PNG), at least 3")],
     board: Annotated[str, Form(description="Board JSON", examples=[
         '{"kind": "chessboard", "inner_corners": [9, 6], "square_mm": 25}',
@@ -131,12 +132,10 @@ async def calibrate(
 ) -> CalibrationPublic:
     board_dict = json_form(board, "board")
     loaded = await read_uploads(images, settings)
-    row = svc.calibrate_camera(session, files, camera_id, images=loaded, board=board_dict,
-                               fix_aspect_ratio=fix_aspect_ratio, subpix_half_window_px=subpix_window_px)
-    if not row.ok:
-        session.commit()  # keep the failed run (its images and per-view reasons) for the operator
-        raise Invalid(f"calibration {row.id} failed: {row.reason}")
-    return CalibrationPublic.model_validate(row, from_attributes=True)
+    args = await run_in_threadpool(svc.prepare_calibration, session, files, camera_id, images=loaded,
+                                   board=board_dict, fix_aspect_ratio=fix_aspect_ratio,
+                                   subpix_half_window_px=subpix_window_px)
+    return enqueue(request, session, "calibrate", args, admin.label())
 
 
 @router.get("/{camera_id}/calibrations", response_model=list[CalibrationPublic], summary="Calibration runs")

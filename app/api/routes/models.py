@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile, status
+from starlette.concurrency import run_in_threadpool
 
 from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
 from app.api.schemas import ModelPublic, Page, RevisionPublic
@@ -55,10 +56,11 @@ async def create_model(
     max_bytes = int(settings.max_upload_mb * 1e6)
     surfaces = json_form(support_surfaces, "support_surfaces")
     data = await _read_upload(file, max_bytes)
-    model = library.create_model(session, files, data=data, filename=safe_filename(file.filename), kind=kind,
-                                 name=name, units=units, T_obj_datum=T_obj_datum, fiducials=fiducials,
-                                 description=description, support_surfaces=surfaces, max_bytes=max_bytes,
-                                 max_faces=settings.max_mesh_faces)
+    # reading and converting the mesh (a STEP file: seconds) in a worker thread, never on the event loop
+    model = await run_in_threadpool(
+        library.create_model, session, files, data=data, filename=safe_filename(file.filename), kind=kind,
+        name=name, units=units, T_obj_datum=T_obj_datum, fiducials=fiducials, description=description,
+        support_surfaces=surfaces, max_bytes=max_bytes, max_faces=settings.max_mesh_faces)
     audit(session, admin.label(), "model.create", model_id=model.id, kind=model.kind, name=model.name)
     return to_public(model, library.get_revision(session, model.id))
 
@@ -111,8 +113,8 @@ async def add_revision(
         kwargs["fiducials"] = None if fiducials.strip() == "null" else fiducials
     if support_surfaces is not None:
         kwargs["support_surfaces"] = json_form(support_surfaces.strip(), "support_surfaces")
-    rev = library.add_revision(session, files, model_id, units=units, note=note, max_bytes=max_bytes,
-                               max_faces=settings.max_mesh_faces, **kwargs)
+    rev = await run_in_threadpool(library.add_revision, session, files, model_id, units=units, note=note,
+                                  max_bytes=max_bytes, max_faces=settings.max_mesh_faces, **kwargs)
     audit(session, admin.label(), "model.revision", model_id=model_id, revision=rev.revision,
           changed=sorted(k for k in kwargs if k != "data"))
     return to_public(library.get_model(session, model_id), rev)

@@ -6,6 +6,7 @@ from typing import Any
 from urllib.parse import urlencode
 
 from fastapi import APIRouter, Depends, Query, Request, Response
+from starlette.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
 from app.api.deps import FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal
@@ -105,5 +106,5 @@ async def probe_results(request: Request, session: SessionDep, files: FilesDep, 
     from app.api.routes.setups import to_public
 
     text = (await request.body()).decode("utf-8", errors="replace")
-    s = svc.apply_probe_results(session, files, settings, setup_id, text, who.label())
+    s = await run_in_threadpool(svc.apply_probe_results, session, files, settings, setup_id, text, who.label())
     return to_public(s).model_dump(mode="json")

@@ -6,10 +6,12 @@ import math
 from datetime import datetime
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Form, Request, Response, UploadFile, status
 from pydantic import BaseModel, Field
+from starlette.concurrency import run_in_threadpool
 
 from app.api.deps import CurrentPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
+from app.api.routes.jobs import JobAccepted, enqueue
 from app.api.uploads import content_disposition, json_form, read_uploads
 from app.services import printing
 from app.services import rotary as svc
@@ -48,11 +50,12 @@ def _floats(text: str, what: str) -> list[float]:
     return values
 
 
-@router.post("/runs", status_code=status.HTTP_201_CREATED, response_model=RotaryRunPublic,
-             summary="Measure a run: images of the target at commanded angles (first = zero position)",
+@router.post("/runs", status_code=status.HTTP_202_ACCEPTED, response_model=JobAccepted,
+             summary="Measure a run: images of the target at commanded angles (first = zero position); a job "
+                     "whose result is the run",
              responses={422: {"description": "bad angles, target, images or camera without intrinsics"}})
 async def create_run(
-    session: SessionDep, files: FilesDep, settings: SettingsDep, who: CurrentPrincipal,
+    request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep, who: CurrentPrincipal,
     camera_id: Annotated[int, Form()],
     images: Annotated[list[UploadFile], File(description="Images in the order of angles_deg")],
     angles_deg: Annotated[str, Form(description="Commanded angles, comma-separated", examples=["0,10,20,30"])],
@@ -61,13 +64,14 @@ async def create_run(
     directions: Annotated[str | None, Form(description="+1/-1 per image; default: inferred")] = None,
     method: Annotated[str, Form(description="direct (ours) | reference")] = "direct",
     axis_name: Annotated[str, Form(max_length=10)] = "C",
-) -> RotaryRunPublic:
+) -> JobAccepted:
     tgt = json_form(target, "target")  # the cheap checks first, then the images
     loaded = await read_uploads(images, settings)
     dirs = [int(d) for d in _floats(directions, "directions")] if directions else None
-    run = svc.run_rotary(session, files, camera_id=camera_id, images=loaded, angles_deg=_floats(angles_deg, "angles_deg"),
-                         target=tgt, method=method, directions=dirs, axis_name=axis_name, by=who.label())
-    return _public(run)
+    args = await run_in_threadpool(svc.prepare_rotary, session, files, camera_id=camera_id, images=loaded,
+                                   angles_deg=_floats(angles_deg, "angles_deg"), target=tgt, method=method,
+                                   directions=dirs, axis_name=axis_name, by=who.label())
+    return enqueue(request, session, "rotary", args, who.label())
 
 
 @router.get("/runs", response_model=list[RotaryRunPublic], summary="Recent rotary runs")

@@ -11,7 +11,10 @@ from fastapi import APIRouter, Depends, File, Form, Header, Query, Request, Resp
 from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
 
+from starlette.concurrency import run_in_threadpool
+
 from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal
+from app.api.routes.jobs import enqueue
 from app.api.uploads import read_image_upload
 from app.services import export as export_svc
 from app.services import setups as svc
@@ -27,6 +30,8 @@ class SetupAccepted(BaseModel):
     status: str
     url: str
     events_url: str
+    job_id: int = Field(description="The localisation job (GET job_url: attempts, worker, timeout)")
+    job_url: str
 
 
 class SetupPublic(BaseModel):
@@ -80,12 +85,12 @@ async def create_setup(
     image: Annotated[UploadFile | None, File(description="JPEG/PNG of table and workpiece")] = None,
 ) -> SetupAccepted:
     data = await read_image_upload(image, settings, "image") if image is not None and image.filename else None
-    setup = svc.create_setup(session, files, machine_id=machine_id, camera_id=camera_id,
-                             model_ids=_parse_ids(model_ids), image=data, grab=grab, created_by=who.label())
-    session.commit()
-    request.app.state.jobs.submit(svc.run_setup_job, setup.id)
+    # checks, storing the image and a camera grab (I/O) off the event loop; the localisation is the job's
+    setup = await run_in_threadpool(svc.create_setup, session, files, machine_id=machine_id, camera_id=camera_id,
+                                    model_ids=_parse_ids(model_ids), image=data, grab=grab, created_by=who.label())
+    job = enqueue(request, session, "localize", {"setup_id": setup.id}, who.label())
     return SetupAccepted(id=setup.id, status=setup.status, url=f"/api/v1/setups/{setup.id}",
-                         events_url=f"/api/v1/setups/{setup.id}/events")
+                         events_url=f"/api/v1/setups/{setup.id}/events", job_id=job.job_id, job_url=job.job_url)
 
 
 @router.get("", response_model=list[SetupPublic], summary="Recent setups (optionally of one machine)")

@@ -9,10 +9,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, File, Form, Request, Response, UploadFile, status
 from fastapi.responses import StreamingResponse
+from starlette.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentPrincipal, FilesDep, OperatorPrincipal, SessionDep, SettingsDep, get_principal, \
     require_admin
+from app.api.routes.jobs import JobAccepted, enqueue
 from app.api.uploads import check_image, json_form, read_image_upload, read_upload
 from app.services import sheet as svc
 from app.services.errors import NotFound
@@ -137,8 +139,9 @@ def get_bed_pose(session: SessionDep, camera_id: int) -> BedPosePublic:
 
 
 # ----------------------------------------------------------------------------------------- alignments
-@router.post("/alignments", status_code=status.HTTP_201_CREATED, response_model=AlignmentPublic,
-             summary="Find the sheet (corners, angle, work offset) in an uploaded or grabbed image",
+@router.post("/alignments", status_code=status.HTTP_202_ACCEPTED, response_model=JobAccepted,
+             summary="Find the sheet (corners, angle, work offset) in an uploaded or grabbed image; a job whose "
+                     "result is the alignment",
              responses={422: {"description": "bad image, pose, margin; camera without intrinsics"}})
 async def create_alignment(
     request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep, who: CurrentPrincipal,
@@ -149,15 +152,15 @@ async def create_alignment(
     T_cam_bed: Annotated[str | None, Form(description="JSON 4x4 (mm); default: the camera's stored bed pose")] = None,
     grab: Annotated[bool, Form(description="grab the image from the camera's source")] = False,
     image: Annotated[UploadFile | None, File(description="JPEG/PNG of the bed")] = None,
-) -> AlignmentPublic:
+) -> JobAccepted:
     data = await read_image_upload(image, settings, "image") if image is not None and image.filename else None
     pose = json_form(T_cam_bed, "T_cam_bed")
     if isinstance(pose, dict):
         pose = pose.get("T_cam_bed")
-    row = await asyncio.to_thread(
-        svc.create_alignment, session, files, request.app.state.events, machine_id=machine_id, camera_id=camera_id,
-        image=data, grab=grab, T_cam_bed=pose, thickness_mm=thickness_mm, margin_mm=margin_mm, by=who.label())
-    return _alignment(row)
+    args = await run_in_threadpool(
+        svc.prepare_alignment, session, files, machine_id=machine_id, camera_id=camera_id, image=data, grab=grab,
+        T_cam_bed=pose, thickness_mm=thickness_mm, margin_mm=margin_mm, by=who.label())
+    return enqueue(request, session, "sheet_align", args, who.label())
 
 
 @router.get("/alignments/{alignment_id}", response_model=AlignmentPublic, summary="One sheet alignment")
@@ -199,7 +202,7 @@ def export_alignment(request: Request, session: SessionDep, alignment_id: int, b
 @router.post("/monitors", status_code=status.HTTP_201_CREATED, response_model=MonitorPublic,
              summary="Start drift monitoring of a confirmed alignment (camera polling or posted frames)")
 def start_monitor(request: Request, session: SessionDep, body: MonitorIn, who: OperatorPrincipal) -> MonitorPublic:
-    mon = svc.registry(request.app.state, session, decision_url).start(
+    mon = request.app.state.sheet_monitors.start(
         session, alignment_id=body.alignment_id, l1_mm=body.l1_mm, l2_mm=body.l2_mm, interval_s=body.interval_s,
         slot=body.slot, roi_px=body.roi_px, actor=who.label(), hold_after_unseen=body.hold_after_unseen)
     return _monitor(session, mon)
@@ -207,13 +210,11 @@ def start_monitor(request: Request, session: SessionDep, body: MonitorIn, who: O
 
 @router.get("/monitors", response_model=list[MonitorPublic], summary="Recent monitors, newest first")
 def list_monitors(request: Request, session: SessionDep, state: str | None = None, limit: int = 20) -> list[MonitorPublic]:
-    svc.registry(request.app.state, session, decision_url)
     return [_monitor(session, m, recent=1) for m in svc.list_monitors(session, state, max(1, min(limit, 100)))]
 
 
 @router.get("/monitors/{monitor_id}", response_model=MonitorPublic, summary="State and recent decisions")
 def get_monitor(request: Request, session: SessionDep, monitor_id: int, recent: int = 100) -> MonitorPublic:
-    svc.registry(request.app.state, session, decision_url)
     return _monitor(session, svc.get_monitor(session, monitor_id), max(1, min(recent, svc.RECENT)))
 
 
@@ -224,7 +225,7 @@ async def post_frame(request: Request, session: SessionDep, settings: SettingsDe
     data = await read_upload(frame, settings, "frame") if frame is not None else None
     if data:  # never decode an image over the pixel limit; an unreadable frame is the monitor's to judge
         check_image(data, settings, "frame", unreadable_ok=True)
-    reg = svc.registry(request.app.state, session, decision_url)
+    reg = request.app.state.sheet_monitors
     session.commit()  # the frame is processed in sessions of its own
     return await asyncio.to_thread(reg.process, monitor_id, data or None, actor=who.label())
 
@@ -233,7 +234,7 @@ async def post_frame(request: Request, session: SessionDep, settings: SettingsDe
              summary="End monitoring (and, with stop_machine, abort the program)")
 def stop_monitor(request: Request, session: SessionDep, monitor_id: int, who: OperatorPrincipal,
                  body: StopIn | None = None) -> MonitorPublic:
-    mon = svc.registry(request.app.state, session, decision_url).end(session, monitor_id, who.label(),
+    mon = request.app.state.sheet_monitors.end(session, monitor_id, who.label(),
                                               stop_machine=bool(body and body.stop_machine))
     return _monitor(session, mon)
 

@@ -1,0 +1,126 @@
+"""Jobs run by the service itself (SETUPCAM_EMBEDDED_WORKER, the default): a setup as a job, a job's timeout;
+a service killed (-9) with one job running and one queued, started again (SQLite and PostgreSQL): both end located."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.support.live_server import live_server, postgres_database, postgres_unavailable_reason
+from tests.support.sample_setup import sample_machine, start_setup, wait_for
+from tests.support.service_process import clean_env, service_process
+
+pytestmark = pytest.mark.integration
+REPO = Path(__file__).resolve().parents[2]
+
+
+def sse_events(client: httpx.Client, url: str) -> list[tuple[str, dict]]:
+    """Every (event, data) of a server-sent event stream, until the server ends it."""
+    out, event = [], None
+    with client.stream("GET", url, timeout=300) as r:
+        assert r.status_code == 200 and r.headers["content-type"].startswith("text/event-stream")
+        for line in r.iter_lines():
+            if line.startswith("event: "):
+                event = line[7:]
+            elif line.startswith("data: "):
+                out.append((event, json.loads(line[6:])))
+    return out
+
+
+@pytest.mark.slow
+def test_embedded_worker_runs_a_setup_as_a_job(tmp_path):
+    with live_server(tmp_path / "data") as srv, srv.client() as c:
+        assert srv.settings.embedded_worker and srv.app.state.engine.dialect.name == "sqlite"
+        machine_id, bracket = sample_machine(c)
+        accepted = start_setup(c, machine_id, bracket)
+        assert accepted["job_url"] == f"/api/v1/jobs/{accepted['job_id']}"
+        assert accepted["url"] == f"/api/v1/setups/{accepted['id']}"  # the shape the pages already read
+        statuses = [d["status"] for e, d in sse_events(c, f"{accepted['job_url']}/events") if e == "status"]
+        assert statuses[-1] == "done" and set(statuses) <= {"queued", "running", "done"}, statuses
+        job = c.get(accepted["job_url"]).json()
+        assert job["kind"] == "localize" and job["attempts"] == 1 and str(os.getpid()) in job["worker"]
+        assert job["result"]["url"] == accepted["url"]
+        setup = c.get(accepted["url"]).json()
+        assert setup["status"] == "located" and setup["result"]["offset"], setup["reason"]
+        assert c.get("/api/v1/health").json()["worker"] == "ok"
+
+
+def test_a_job_past_its_timeout_fails_with_that_reason(tmp_path):
+    with live_server(tmp_path / "data", job_timeout_s=1.0, job_heartbeat_s=0.2) as srv, srv.client() as c:
+        machine_id, bracket = sample_machine(c)
+        accepted = start_setup(c, machine_id, bracket)
+        job = wait_for(c, accepted["job_url"], lambda j: j["status"] in ("done", "failed"), 120)
+        assert job["status"] == "failed" and job["reason"].startswith("timed out after 1 s"), job
+        setup = c.get(accepted["url"]).json()
+        assert setup["status"] == "failed" and setup["reason"] == job["reason"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", ["sqlite", pytest.param("postgres", marks=pytest.mark.postgres)])
+def test_service_killed_with_jobs_running_and_queued_finishes_them_after_restart(tmp_path, backend):
+    data = tmp_path / "data"
+    # one worker thread: the first setup runs, the second waits; a job silent for 2 s is taken as dead
+    env = clean_env(SETUPCAM_WORKERS="1", SETUPCAM_JOB_STALL_S="2", SETUPCAM_JOB_HEARTBEAT_S="0.5",
+                    SETUPCAM_LOG_JSON="false", PYTHONPATH=str(REPO))
+    command = [sys.executable, "-m", "app.cli"]
+    with contextlib.ExitStack() as stack:
+        if backend == "postgres":
+            why = postgres_unavailable_reason()
+            if why:
+                pytest.skip(why)
+            env["DATABASE_URL"] = stack.enter_context(postgres_database())
+        _kill_and_restart(command, data, env)
+
+
+def _kill_and_restart(command: list[str], data, env: dict) -> None:
+    with service_process(command, data, cwd=REPO, env=env) as svc:
+        password = svc.first_admin_password()
+        with signed_in(svc.url, password) as c:
+            machine_id, bracket = sample_machine(c)
+            first, second = start_setup(c, machine_id, bracket), start_setup(c, machine_id, bracket)
+            wait_for(c, first["url"], lambda s: s["status"] == "running" and s["stages"], 120, "first setup running")
+            assert c.get(second["job_url"]).json()["status"] == "queued"
+        os.kill(svc.proc.pid, signal.SIGKILL)  # power cut: nothing is settled on the way down
+        svc.proc.wait(10)
+    env = {**env, "SETUPCAM_WORKERS": "2"}  # after the restart both run side by side
+    with service_process(command, data, cwd=REPO, env=env) as svc:
+        with signed_in(svc.url, password) as c:
+            for accepted, attempts in ((first, 2), (second, 1)):
+                job = wait_for(c, accepted["job_url"], lambda j: j["status"] in ("done", "failed"), 240)
+                assert job["status"] == "done" and job["attempts"] == attempts, job
+                assert c.get(accepted["url"]).json()["status"] == "located"
+
+
+
+def signed_in(url: str, password: str) -> httpx.Client:
+    """A client of the service at ``url`` signed in as its first admin."""
+    r = httpx.post(f"{url}/api/v1/auth/login", json={"name": "admin", "password": password}, timeout=60)
+    assert r.status_code == 200, r.text
+    return httpx.Client(base_url=url, timeout=60, headers={"Authorization": f"Bearer {r.json()['token']}"})
+
+
+@pytest.mark.slow
+def test_the_pages_answer_while_a_localisation_runs(tmp_path):
+    """A localisation (about 20 s of CPU) runs as a job at a lower priority: the service keeps answering."""
+    with live_server(tmp_path / "data") as srv, srv.client() as c:
+        machine_id, bracket = sample_machine(c)
+        accepted = start_setup(c, machine_id, bracket)
+        times = []
+        while c.get(accepted["job_url"]).json()["status"] in ("queued", "running"):
+            t0 = time.perf_counter()
+            assert c.get("/api/v1/health").status_code == 200
+            assert c.get(accepted["url"]).status_code == 200
+            times.append(time.perf_counter() - t0)
+            time.sleep(0.05)
+        assert c.get(accepted["job_url"]).json()["status"] == "done"
+        assert len(times) >= 20, "the localisation ran long enough to be measured"
+        # two calls each; generous for a shared CI machine (BENCHMARKS.md has the figures under load)
+        assert sorted(times)[int(0.95 * (len(times) - 1))] < 0.5, times
