@@ -175,9 +175,6 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     round_part = (model.continuous_axis_obj is not None and
                   abs((rs.T_rest_obj[:3, :3] @ model.continuous_axis_obj)[2]) > 0.999)
 
-    def face_normals(sel):
-        return edge_faces_of(model, rs.T_rest_obj, sel)
-
     def template(spacing_mm, max_n, only=None):
         step = max(1, int(round(spacing_mm / model.sample_step_mm)))
         keep = np.ones(len(cand), bool) if only is None else only
@@ -258,7 +255,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         at = np.concatenate([cth, it2[good] * dth])
         _, _, _, w_w, w_sel = template(max(3.0 * px_mm, diam / 60.0), 80)
         wide = image_score_wide(ax, ay, at, P[w_sel] + np.array([0.0, 0.0, height_mm]), D[w_sel], w_w,
-                                normals=face_normals(w_sel))
+                                normals=edge_faces_of(model, rs.T_rest_obj, w_sel))
         order = np.argsort(-wide)
         keep = _nms(ax[order], ay[order], at[order], 1.5 * b, 1.5 * dth, n_coarse)
         cx, cy, cth = ax[order][keep], ay[order][keep], at[order][keep]
@@ -267,7 +264,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     _, _, _, f_w, f_sel = template(max(2.0 * px_mm, diam / 100.0), 120)
     f_P = P[f_sel] + np.array([0.0, 0.0, height_mm])
     f_D = D[f_sel]
-    f_N = face_normals(f_sel)
+    f_N = edge_faces_of(model, rs.T_rest_obj, f_sel)
     hx, hy, ht = cx, cy, cth
     # each step's scorer reaches about as far as the step is coarse (a 2 px scorer cannot see a part
     # half a coarse cell away); every coarse cell keeps its best refinement, so a big part whose
