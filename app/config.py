@@ -8,7 +8,7 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-from pydantic import Field, model_validator
+from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from app.resources import bundled_dir
@@ -22,6 +22,17 @@ class Settings(BaseSettings):
     database_url: str = Field(default="", validation_alias="DATABASE_URL",
                               description="SQLAlchemy URL; empty means SQLite under data_dir.")
     viser_port: int = Field(default=8081, validation_alias="SETUPCAM_VISER_PORT")
+    file_store: str = Field(default="", validation_alias="SETUPCAM_FILE_STORE",
+                            description="Where images, meshes and pictures are kept (docs/jobs.md): empty = "
+                                        "$SETUPCAM_DATA_DIR/files; a folder (a share every worker mounts); or "
+                                        "s3://bucket/prefix, a bucket on an S3-compatible server.")
+    s3_endpoint_url: str = Field(default="", validation_alias="SETUPCAM_S3_ENDPOINT_URL",
+                                 description="The S3-compatible server, e.g. http://minio.plant:9000; empty = AWS.")
+    s3_region: str = Field(default="", validation_alias="SETUPCAM_S3_REGION",
+                           description="The bucket's region; empty = boto3's default (AWS_DEFAULT_REGION ...).")
+    s3_access_key_id: str = Field(default="", validation_alias="SETUPCAM_S3_ACCESS_KEY_ID",
+                                  description="Empty = boto3's own chain (AWS_ACCESS_KEY_ID, ~/.aws, instance role).")
+    s3_secret_access_key: SecretStr | None = Field(default=None, validation_alias="SETUPCAM_S3_SECRET_ACCESS_KEY")
     models_library_dir: Path = Field(
         default_factory=lambda: bundled_dir("models_library"),
         validation_alias="SETUPCAM_MODELS_LIBRARY",
@@ -99,6 +110,11 @@ class Settings(BaseSettings):
 
     @property
     def files_dir(self) -> Path:
+        """The folder of the file store: SETUPCAM_FILE_STORE when it names a folder, else data_dir/files
+        (unused when the store is an S3 bucket)."""
+        where = self.file_store.strip()
+        if where and not where.startswith("s3://"):
+            return Path(where).expanduser().resolve()
         return self.data_dir / "files"
 
 

@@ -35,7 +35,7 @@ from app.services.setups import enqueue_orphaned_setups
 from app.services.sheet import SheetMonitors
 from app.services.throttle import LoginThrottle
 from app.store.db import make_engine, migrate, protect_data, session_scope
-from app.store.files import FileStore
+from app.store.files import open_file_store
 from app.viewer.service import start_viewer, stop_viewer
 
 log = logging.getLogger("setupcam")
@@ -52,7 +52,7 @@ def startup(app: FastAPI) -> None:
     """Migrate the database, then load the example library (idempotent)."""
     settings: Settings = app.state.settings
     migrate(app.state.engine)
-    protect_data(settings.data_dir, settings.database_url)
+    protect_data(settings.data_dir, settings.database_url, settings.files_dir)
     dummy_hash()  # made once now, so that the first unknown name costs no more than a wrong password
     with session_scope(app.state.engine) as session:
         password = ensure_first_admin(session)
@@ -90,7 +90,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         startup(app)
         start_viewer(app)
         log.info("setupcam ready", extra={"database": app.state.engine.dialect.name,
-                                          "data_dir": str(settings.data_dir)})
+                                          "data_dir": str(settings.data_dir),
+                                          "file_store": app.state.files.describe()})
         yield
         stop_viewer(app)
         app.state.sheet_monitors.shutdown()  # their state stays 'running' in the database: the next start resumes them
@@ -110,7 +111,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.engine = make_engine(settings.database_url)
-    app.state.files = FileStore(settings.files_dir)
+    app.state.files = open_file_store(settings)
     app.state.login_throttle = LoginThrottle(free=settings.login_free_failures)
 
     @app.exception_handler(ServiceError)

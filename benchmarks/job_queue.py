@@ -41,7 +41,7 @@ from app.config import Settings  # noqa: E402
 from app.services.jobs import JobContext, JobRun  # noqa: E402
 from app.services.setups import run_setup_job  # noqa: E402
 from app.store.db import make_engine  # noqa: E402
-from app.store.files import FileStore  # noqa: E402
+from app.store.files import FolderStore  # noqa: E402
 from app.store.models import Job  # noqa: E402
 from sqlmodel import Session, select  # noqa: E402
 from tests.support.factories import make_machine  # noqa: E402
@@ -212,7 +212,7 @@ def drain(n_workers: int, tmp: Path, n_jobs: int) -> dict:
         run_s = [(r.finished_at - r.started_at).total_seconds() for r in steady]
         # the same job function called directly, on as many fresh setups (the first one warms the cache)
         direct = blank_setups(c, n_jobs + 1)
-        ctx = JobContext(engine, FileStore(Path(data) / "files"), Settings(SETUPCAM_DATA_DIR=str(data), DATABASE_URL=url))
+        ctx = JobContext(engine, FolderStore(Path(data) / "files"), Settings(SETUPCAM_DATA_DIR=str(data), DATABASE_URL=url))
         run_setup_job(JobRun(ctx, direct[0]["job_id"], 1, time.monotonic() + 600), direct[0]["id"])
         t0 = time.perf_counter()
         for a in direct[1:]:

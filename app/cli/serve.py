@@ -22,6 +22,7 @@ def run(args: argparse.Namespace) -> int:
     from app.config import Settings
     from app.logging_setup import configure_logging
     from app.main import create_app
+    from app.store.files import FileStoreError
 
     if args.data_dir:
         os.environ["SETUPCAM_DATA_DIR"] = args.data_dir
@@ -29,7 +30,11 @@ def run(args: argparse.Namespace) -> int:
         os.environ["SETUPCAM_VISER_PORT"] = str(args.viser_port)
     settings = Settings()
     configure_logging(settings.log_json)
-    app = create_app(settings)
+    try:
+        app = create_app(settings)
+    except FileStoreError as exc:  # an unknown bucket or refused key: the sentence, not a traceback
+        print(f"setupcam serve: file store: {exc}", file=sys.stderr)
+        return 1
     why = database_unreachable(app.state.engine)
     if why:  # a sentence, not a traceback from deep inside the start-up
         print(f"setupcam serve: {why}", file=sys.stderr)

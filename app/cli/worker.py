@@ -1,8 +1,8 @@
 """``setupcam worker [--concurrency N]``: run jobs (localisations, sheet alignments, calibrations, rotary
 runs) for a service that only enqueues them (``SETUPCAM_EMBEDDED_WORKER=false``).
 
-It reads the same settings as the service (``DATABASE_URL``, ``SETUPCAM_DATA_DIR`` for the file store,
-...). On PostgreSQL it is a Procrastinate worker (heartbeats; the jobs of a worker that went silent are
+It reads the same settings as the service (``DATABASE_URL``, ``SETUPCAM_FILE_STORE`` (a shared folder or an
+``s3://`` bucket; default ``$SETUPCAM_DATA_DIR/files``), ...). On PostgreSQL it is a Procrastinate worker (heartbeats; the jobs of a worker that went silent are
 given to another one); on SQLite it polls the job table. Any number of workers on any number of
 machines share the database and the file store. SIGTERM/SIGINT stop it; what it was running goes back
 to the queue.
@@ -23,7 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--concurrency", type=int, default=1,
                    help="jobs run at once in this process (threads; default 1). For CPU-bound work on a machine "
                         "with N cores, start N workers of concurrency 1 rather than one of N")
-    p.add_argument("--data-dir", help="data folder (overrides SETUPCAM_DATA_DIR): where the file store is")
+    p.add_argument("--data-dir", help="data folder (overrides SETUPCAM_DATA_DIR): where the file store is, unless "
+                                      "SETUPCAM_FILE_STORE names another folder or a bucket")
     p.add_argument("--wait-schema-s", type=float, default=60.0,
                    help="how long to wait for the service to create the database schema (default 60 s)")
     p.set_defaults(func=run)
@@ -36,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from app.services.job_kinds import KINDS
     from app.services.jobs import JobContext, worker_name
     from app.store.db import make_engine
-    from app.store.files import FileStore
+    from app.store.files import FileStoreError, open_file_store
 
     if args.concurrency < 1:
         print("setupcam worker: --concurrency must be 1 or more", file=sys.stderr)
@@ -50,9 +51,15 @@ def run(args: argparse.Namespace) -> int:
     if why:
         print(f"setupcam worker: {why}", file=sys.stderr)
         return 1
+    try:
+        files = open_file_store(settings)
+    except FileStoreError as exc:
+        print(f"setupcam worker: file store: {exc}", file=sys.stderr)
+        return 1
     events = EventBus(settings.webhooks, settings.mqtt_url, settings.mqtt_topic_prefix)
-    ctx = JobContext(engine, FileStore(settings.files_dir), settings, events)
-    print(f"setupcam worker {worker_name()}: {engine.dialect.name}, concurrency {args.concurrency}",
+    ctx = JobContext(engine, files, settings, events)
+    print(f"setupcam worker {worker_name()}: {engine.dialect.name}, files in {files.describe()}, "
+          f"concurrency {args.concurrency}",
           file=sys.stderr, flush=True)
     try:
         if engine.dialect.name == "postgresql":

@@ -26,6 +26,7 @@ from typing import Callable
 
 import cv2
 import numpy as np
+from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, col, select
 
 from app.geometry.transforms import check_pose
@@ -351,11 +352,8 @@ class SheetMonitors:
             raise Invalid(f"hold_after_unseen must be 1 or more frames (or null: never), got {hold_after_unseen}")
         if interval_s is not None and not 0.05 <= interval_s <= 3600:
             raise Invalid(f"interval_s {interval_s} is outside 0.05..3600 s")
-        busy = session.exec(select(SheetMonitor).where(SheetMonitor.alignment_id == alignment_id,
-                                                       SheetMonitor.state == "running")).first()
-        if busy is not None and busy.id in self._runs:
-            raise Conflict(f"monitor {busy.id} already watches alignment {alignment_id}; stop it first")
         cam = get_camera(session, row.camera_id)
+        self._check_camera_free(session, cam)
         source = None
         if interval_s is not None:
             if cam.source.get("kind", "upload") == "upload":
@@ -367,16 +365,36 @@ class SheetMonitors:
             drift = self._drift(row, l1_mm, l2_mm, roi_px)
         except ValueError as exc:
             raise Invalid(f"monitor not started: {exc}") from None
-        mon = SheetMonitor(alignment_id=row.id, l1_mm=l1_mm, l2_mm=l2_mm, interval_s=interval_s, slot=slot,
-                           roi_px=roi_px, hold_after_unseen=hold_after_unseen, created_by=actor)
+        mon = SheetMonitor(alignment_id=row.id, camera_id=cam.id, l1_mm=l1_mm, l2_mm=l2_mm, interval_s=interval_s,
+                           slot=slot, roi_px=roi_px, hold_after_unseen=hold_after_unseen, created_by=actor)
         session.add(mon)
-        session.flush()
+        try:
+            session.flush()
+        except IntegrityError:  # another request started one on this camera since the check: the index refused
+            session.rollback()
+            self._check_camera_free(session, cam)
+            raise Conflict(f"another monitor was started on camera {cam.id} ({cam.name}) at the same moment; "
+                           "look at GET /api/v1/sheet/monitors?state=running", "camera_monitored") from None
         audit(session, actor, "sheet.monitor_start", machine_id=row.machine_id, alignment_id=row.id,
               monitor_id=mon.id, l1_mm=l1_mm, l2_mm=l2_mm, slot=slot)
         session.commit()
         self._run(mon.id, drift, source, interval_s)
         log.info("sheet monitor started", extra={"monitor_id": mon.id, "alignment_id": row.id})
         return mon
+
+    @staticmethod
+    def _check_camera_free(session: Session, cam) -> None:
+        """Conflict naming the monitor already running on ``cam``: one camera, one monitor (two would
+        re-datum the same machine from the same pictures). The database's unique index over the running
+        monitors' cameras holds this across requests and service processes."""
+        running = session.exec(select(SheetMonitor).where(SheetMonitor.camera_id == cam.id,
+                                                          SheetMonitor.state == "running")).first()
+        if running is not None:
+            since = running.created_at.strftime("%Y-%m-%d %H:%M UTC") if running.created_at else "earlier"
+            raise Conflict(f"camera {cam.id} ({cam.name}) is already watched by monitor {running.id} (alignment "
+                           f"{running.alignment_id}, started by {running.created_by or 'unknown'} at {since}); one "
+                           f"monitor per camera: stop monitor {running.id} first "
+                           f"(POST /api/v1/sheet/monitors/{running.id}/stop)", "camera_monitored")
 
     def end(self, session: Session, monitor_id: int, actor: str, *, stop_machine: bool = False) -> SheetMonitor:
         """End monitoring (state ``finished`` unless the monitor stopped the machine); optionally abort."""

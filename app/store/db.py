@@ -63,13 +63,14 @@ def session_scope(engine: Engine) -> Iterator[Session]:
             raise
 
 
-def protect_data(data_dir: Path, database_url: str) -> None:
-    """Only the service's user may read what it keeps: data folder (and the file store in it) 0700, the
-    SQLite file with its WAL/SHM companions 0600. Applied at every start, so an older install is fixed."""
+def protect_data(data_dir: Path, database_url: str, files_dir: Path | None = None) -> None:
+    """Only the service's user may read what it keeps: data folder and the file store's folder
+    (``files_dir``, default ``data_dir/files``) 0700, the SQLite file with its WAL/SHM companions 0600.
+    Applied at every start, so an older install is fixed. (A bucket's access is its key's.)"""
     import os
     import stat
 
-    for folder in (Path(data_dir), Path(data_dir) / "files"):
+    for folder in (Path(data_dir), Path(files_dir) if files_dir else Path(data_dir) / "files"):
         if folder.is_dir():
             os.chmod(folder, stat.S_IRWXU)
     if database_url.startswith("sqlite"):

@@ -9,7 +9,7 @@ from __future__ import annotations
 from datetime import datetime, timezone
 from typing import Any, Literal
 
-from sqlalchemy import JSON, Column, UniqueConstraint
+from sqlalchemy import JSON, Column, Index, UniqueConstraint, text
 from sqlmodel import Field, SQLModel
 
 ModelKind = Literal["workpiece", "clamp", "support", "table"]
@@ -296,8 +296,13 @@ class SheetMonitor(SQLModel, table=True):
     """Drift monitoring of a confirmed alignment: thresholds, the slot it re-datums, its state."""
 
     __tablename__ = "sheet_monitor"
+    # one running monitor per camera: two would re-datum the same machine from the same pictures
+    __table_args__ = (Index("uq_sheet_monitor_running_camera", "camera_id", unique=True,
+                            sqlite_where=text("state = 'running'"), postgresql_where=text("state = 'running'")),)
     id: int | None = Field(default=None, primary_key=True)
     alignment_id: int = Field(foreign_key="sheet_alignment.id", index=True)
+    camera_id: int | None = Field(default=None, description="the alignment's camera, copied here for the index "
+                                                            "that allows one running monitor per camera")
     l1_mm: float
     l2_mm: float
     interval_s: float | None = Field(default=None, description="camera polling period; None = frames are posted")

@@ -158,7 +158,7 @@ def test_service_killed_during_an_export_ends_written_or_failed_after_restart(tm
 
     import httpx
 
-    from app.store.files import FileStore
+    from app.store.files import FolderStore
 
     env = {**os.environ, "SETUPCAM_DATA_DIR": str(tmp_path), "SETUPCAM_LOAD_EXAMPLES": "false"}
     env.pop("DATABASE_URL", None)
@@ -190,7 +190,7 @@ def test_service_killed_during_an_export_ends_written_or_failed_after_restart(tm
     settings = Settings(SETUPCAM_DATA_DIR=str(tmp_path))
     here = SimpleNamespace(app=SimpleNamespace(state=SimpleNamespace(
         engine=__import__("app.store.db", fromlist=["make_engine"]).make_engine(settings.database_url),
-        files=FileStore(settings.files_dir))), settings=settings)
+        files=FolderStore(settings.files_dir))), settings=settings)
     try:
         with httpx.Client(base_url=base, headers={"Authorization": f"Bearer {admin_key}"}, timeout=60) as c:
             machine = make_machine(c, lcnc.settings)

@@ -10,6 +10,7 @@ import json
 import shutil
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import httpx
@@ -312,6 +313,44 @@ def test_monitor_stop_ends_monitoring(server, dry_machine, camera, bed_image):
         got: list = []
         _read_sse(f"{server.url}/api/v1/sheet/monitors/{mid}/events", server.tokens["operator"], got, 20)
         assert [e for e, _ in got] == ["decision", "end"] and got[-1][1]["state"] == "finished"
+
+
+def test_one_running_monitor_per_camera(server, dry_machine, bed_image):
+    """A second monitor on a camera that already has a running one is refused (409) with the running
+    one named, also when two starts race; another camera is free; once the first ends the camera is free."""
+    with server.client("admin") as c:
+        cams = [c.post("/api/v1/cameras", json={"name": f"bed cam {i}", "intrinsics": CAM.intrinsics_dict()}).json()
+                for i in (1, 2)]
+    with server.client("operator") as c:
+        aids = [align(c, dry_machine["id"], cam["id"], _jpg(bed_image.image)).json()["id"]
+                for cam in (cams[0], cams[0], cams[1])]
+        for aid in aids:
+            assert c.post(f"/api/v1/sheet/alignments/{aid}/confirm").status_code == 200
+        start = {"l1_mm": 1.0, "l2_mm": 4.0}
+        first = c.post("/api/v1/sheet/monitors", json={"alignment_id": aids[0], **start})
+        assert first.status_code == 201 and first.json()["camera_id"] == cams[0]["id"], first.text
+        mid = first.json()["id"]
+        for aid in aids[:2]:  # the same alignment again, or another alignment seen by the same camera
+            r = c.post("/api/v1/sheet/monitors", json={"alignment_id": aid, **start})
+            assert r.status_code == 409 and r.json()["code"] == "camera_monitored", r.text
+            detail = r.json()["detail"]
+            assert f"camera {cams[0]['id']} (bed cam 1) is already watched by monitor {mid}" in detail, detail
+            assert f"alignment {aids[0]}, started by test-operator" in detail and f"stop monitor {mid} first" in detail
+        other = c.post("/api/v1/sheet/monitors", json={"alignment_id": aids[2], **start})
+        assert other.status_code == 201, "another camera has its own monitor"
+        assert c.post(f"/api/v1/sheet/monitors/{mid}/stop").json()["state"] == "finished"
+        # the camera is free again; two starts at the same moment: one runs, the other is told why
+        with ThreadPoolExecutor(2) as pool:
+            answers = list(pool.map(lambda aid: c.post("/api/v1/sheet/monitors", json={"alignment_id": aid, **start}),
+                                    aids[:2]))
+        assert sorted(r.status_code for r in answers) == [201, 409], [r.text for r in answers]
+        won = next(r.json() for r in answers if r.status_code == 201)
+        assert f"monitor {won['id']}" in next(r.json()["detail"] for r in answers if r.status_code == 409)
+        running = c.get("/api/v1/sheet/monitors", params={"state": "running"}).json()
+        assert sorted(m["camera_id"] for m in running if m["camera_id"] in (cams[0]["id"], cams[1]["id"])) == \
+            sorted([cams[0]["id"], cams[1]["id"]])
+        for m in (won, other.json()):
+            c.post(f"/api/v1/sheet/monitors/{m['id']}/stop")
 
 
 def _wait_idle(lcnc, timeout_s: float = 5.0) -> dict:

@@ -14,7 +14,7 @@ from sqlmodel import Session, select
 
 from app.services import library
 from app.store.db import alembic_config, make_engine, migrate
-from app.store.files import FileStore
+from app.store.files import FolderStore
 from app.store.models import LibraryModel
 from tests.support.live_server import throwaway_database
 
@@ -43,7 +43,7 @@ def _current(session: Session, key: str):
 def test_loading_is_idempotent_and_older_loads_get_the_declared_surfaces(tmp_path):
     engine = make_engine(f"sqlite:///{tmp_path / 'lib.db'}")
     migrate(engine)
-    files = FileStore(tmp_path / "files")
+    files = FolderStore(tmp_path / "files")
     keys = ("tslot_table_800x400", "vise_150", "strap_clamp_125", "parallel_150x25x8")
     plain, declared = _library_copy(tmp_path, keys, False), _library_copy(tmp_path, keys, True)
     with Session(engine) as s:                      # an installation loaded before surfaces were declared

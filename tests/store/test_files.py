@@ -10,7 +10,7 @@ import pytest
 from sqlmodel import Session, select
 
 from app.store.db import make_engine, migrate
-from app.store.files import FileStore
+from app.store.files import FolderStore
 from app.store.models import StoredFile
 from tests.support.live_server import postgres_database, postgres_unavailable_reason
 
@@ -28,7 +28,7 @@ def test_two_sessions_store_the_same_bytes_at_once(tmp_path, backend):
         engine = make_engine(url)
         stack.callback(engine.dispose)
         migrate(engine)
-        files = FileStore(tmp_path / "files")
+        files = FolderStore(tmp_path / "files")
         first, second = Session(engine), Session(engine)
         errors: list[BaseException] = []
         sha = files.put(first, b"the same stage picture", "image/png")  # inserted, not yet committed

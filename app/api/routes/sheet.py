@@ -89,6 +89,7 @@ class MonitorIn(BaseModel):
 class MonitorPublic(BaseModel):
     id: int
     alignment_id: int
+    camera_id: int | None = Field(description="the alignment's camera: one running monitor each")
     l1_mm: float
     l2_mm: float
     interval_s: float | None
@@ -200,7 +201,9 @@ def export_alignment(request: Request, session: SessionDep, alignment_id: int, b
 
 # ----------------------------------------------------------------------------------------- monitors
 @router.post("/monitors", status_code=status.HTTP_201_CREATED, response_model=MonitorPublic,
-             summary="Start drift monitoring of a confirmed alignment (camera polling or posted frames)")
+             summary="Start drift monitoring of a confirmed alignment (camera polling or posted frames)",
+             responses={409: {"description": "the alignment is not confirmed, or its camera already has a running "
+                                             "monitor (code camera_monitored; the detail names it)"}})
 def start_monitor(request: Request, session: SessionDep, body: MonitorIn, who: OperatorPrincipal) -> MonitorPublic:
     mon = request.app.state.sheet_monitors.start(
         session, alignment_id=body.alignment_id, l1_mm=body.l1_mm, l2_mm=body.l2_mm, interval_s=body.interval_s,
