@@ -142,6 +142,21 @@ def table_pose_at(machine: Machine, angle_deg: float | None = None) -> np.ndarra
     return chain.T_machine_table(machine.rotary_axis["export_at_deg"] if angle_deg is None else angle_deg)
 
 
+def picture_turn(machine: Machine, angle_deg: float | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """How the 3D view shows the table of a picture taken with the rotary axis at ``angle_deg``: the table's
+    pose at that angle seen from the table at the export angle (the view's world), 4x4 mm, and the axis of
+    rotation in that world as two points 500 mm either side of the axis frame's origin, (2, 3) mm. None
+    on a machine whose table does not turn, or when no angle was recorded."""
+    chain = rotary_chain(machine.rotary_axis)
+    if chain is None or angle_deg is None:
+        return None
+    export = machine.rotary_axis["export_at_deg"]
+    T_world_machine = np.linalg.inv(chain.T_machine_table(export))
+    ends = [chain.axis_point() + k * 500.0 * chain.axis_direction() for k in (-1.0, 1.0)]
+    axis = np.array([T_world_machine[:3, :3] @ p + T_world_machine[:3, 3] for p in ends])
+    return chain.turn(export, angle_deg), axis
+
+
 def _keep_chain_in_step(m: Machine, given_pose: Any) -> None:
     """With a rotary axis ``T_machine_table`` is the chain at ``export_at_deg`` (what every offset, travel
     check and probing plan uses); a pose given along must be that one (Invalid otherwise), and the axis'

@@ -132,3 +132,30 @@ def test_the_offset_is_the_chain_at_the_export_angle(server, client, parts):
     assert off["axis"] == "C" and off["at_axis_deg"] == -90.0
     assert np.allclose([off["x_mm"], off["y_mm"], off["z_mm"]], T[:3, 3], atol=1e-6)
     assert off["c_deg"] == pytest.approx(20.0 + 0.3 - 90.0)
+
+
+def test_the_3d_view_shows_the_table_turned_as_at_the_picture(server, client, parts):
+    from app.store.db import session_scope
+    from app.store.models import Setup
+    from app.viewer.data import MeshCache, load_setup_view
+
+    base, block = parts
+    m = client.post("/api/v1/machines", json={"name": "Rotary view", **base, "rotary_axis": _rotary()}).json()
+    plain = client.post("/api/v1/machines", json={"name": "Plain view", **base}).json()
+    T_table_obj = pose_from_xyz_euler(300, 120, 10)
+    sid = located_setup(server, m["id"], T_table_obj, model=(block, 1))
+    with session_scope(server.app.state.engine) as session:
+        s = session.get(Setup, sid)
+        s.table_angle_deg, s.table_angle_from = 37.0, "operator"
+        session.add(s)
+    engine, files = server.app.state.engine, server.app.state.files
+    view = load_setup_view(engine, files, MeshCache(), sid)
+    chain = RotaryChain("C", T_MACHINE_AXIS, T_AXIS_TABLE)
+    assert np.allclose(view.T_world_table, chain.turn(0.0, 37.0))
+    # the axis line passes through the table's centre (400, 200), which T_AXIS_TABLE puts on the axis
+    a, b = view.axis_mm
+    assert np.allclose(a[:2], (400, 200), atol=1e-6) and np.allclose(b[:2], (400, 200), atol=1e-6)
+    assert np.allclose(view.world(view.objects[0].T_table_obj), chain.turn(0.0, 37.0) @ T_table_obj)
+    plain_view = load_setup_view(engine, files, MeshCache(), located_setup(server, plain["id"], T_table_obj,
+                                                                          model=(block, 1)))
+    assert np.allclose(plain_view.T_world_table, np.eye(4)) and plain_view.axis_mm is None
