@@ -7,7 +7,7 @@ angle). Back at C = 0, G38.2 touches on the simulated part (tests/machine/simpro
 joint 3) find the datum where the ground truth says: each touch within 0.05 mm of the contact the true
 part gives against the written G54. That prediction uses the picture's localisation error, measured
 in the table frame without any axis angle, so what is left is the chain's own error: an offset written
-for the angle of the picture, or with the axis turning the wrong way, misses by tens of millimetres.
+for the angle of the picture, or with the axis turning the wrong way, misses by 40 mm here.
 """
 
 from __future__ import annotations
@@ -144,9 +144,9 @@ def test_picture_at_c37_offset_at_c0_datum_found_by_probing(server, sim):
     for k, axis_name in enumerate(("x_mm", "y_mm", "z_mm")):
         assert abs(T_G54[k, 3] - truth[k, 3]) <= 3 * sig[axis_name] + 0.05, (axis_name, T_G54[:3, 3], truth[:3, 3])
 
-    # what the test tells apart: the offset of the picture's angle lies tens of mm away from the written one
+    # what the test tells apart: the offset of the picture's angle lies 40 mm away from the written one
     at_picture = CHAIN.T_machine_table(PICTURE_DEG) @ T_loc @ D
-    assert np.linalg.norm(at_picture[:3, 3] - T_G54[:3, 3]) > 50.0
+    assert np.linalg.norm(at_picture[:3, 3] - T_G54[:3, 3]) > 30.0
 
     # back to the angle the NC program expects, and touch the true part around the datum in G54
     sim.mdi("G53 G0 C0")
@@ -178,7 +178,36 @@ def test_picture_at_c37_offset_at_c0_datum_found_by_probing(server, sim):
             print(f"{face}: tip in G54 {np.round(got, 4).tolist()}, expected {np.round(want, 4).tolist()}")
             sim.mdi("G0 " + " ".join(f"{a}{v:.4f}" for a, v in zip("XYZ", start)))  # back off the face
         sim.mdi("G0 Z20")
+        print(f"touch errors against the truth: {np.round(errors, 4).tolist()} mm")
+        assert max(errors) <= 0.05, errors
+        _probing_program_runs_only_at_the_export_angle(server, sim, setup["id"])
     finally:
         sim.set_probe_part([])
-    print(f"touch errors against the truth: {np.round(errors, 4).tolist()} mm")
-    assert max(errors) <= 0.05, errors
+
+
+def _probing_program_runs_only_at_the_export_angle(server, sim, setup_id: int) -> None:
+    """The setup's real probing program (planned in the table frame at C = 0) aborts before any move when
+    the table stands at C = 37, and touches the part four times at C = 0."""
+    from tests.machine.linuxcnc_sim import SimError
+
+    with server.client("operator") as c:
+        r = c.get(f"/api/v1/setups/{setup_id}/probing-program", params={"dialect": "linuxcnc", "wcs": "G54"})
+        assert r.status_code == 200, r.text
+    program = r.text
+    assert "o9001 if [ABS[#<setupcam_axis> - 0.000000] GT 0.010000]" in program
+    log_file = sim.workdir / "setupcam_probe.txt"
+    for angle, touches in ((PICTURE_DEG, 0), (0.0, 4)):
+        log_file.unlink(missing_ok=True)
+        sim.mdi("G53 G0 Z0")
+        sim.mdi(f"G53 G0 X-100 Y-100 C{angle}")
+        before = sim.status()["actual_position"]
+        try:
+            sim.run_program(program, name=f"probe_c{angle:g}.ngc")
+        except SimError as exc:  # aborted before the child saw it start: the reason is in its message
+            assert touches == 0 and "not at 0.000 deg" in str(exc), exc
+        st = sim.wait_idle(300.0)
+        if touches == 0:
+            assert np.allclose(st["actual_position"], before, atol=1e-6), (before, st["actual_position"])
+            assert not log_file.exists()
+        else:
+            assert len(log_file.read_text().strip().splitlines()) == touches, log_file.read_text()
