@@ -159,3 +159,26 @@ def test_the_3d_view_shows_the_table_turned_as_at_the_picture(server, client, pa
     plain_view = load_setup_view(engine, files, MeshCache(), located_setup(server, plain["id"], T_table_obj,
                                                                           model=(block, 1)))
     assert np.allclose(plain_view.T_world_table, np.eye(4)) and plain_view.axis_mm is None
+
+
+def test_an_offset_for_an_old_export_angle_is_not_exported(server, client, parts, tmp_path):
+    base, _ = parts
+    folder = tmp_path / "nc"
+    folder.mkdir()
+    m = client.post("/api/v1/machines", json={"name": "Rotary gate", **base, "rotary_axis": _rotary(),
+                                              "controller": {"kind": "file", "dialect": "linuxcnc",
+                                                             "folder": str(folder)}}).json()
+    sid = located_setup(server, m["id"], pose_from_xyz_euler(300, 120, 0, c_deg=20))
+    with server.client("operator") as op:
+        assert op.post(f"/api/v1/setups/{sid}/confirm", json={"result_revision": 1}).status_code == 200
+    r = client.patch(f"/api/v1/machines/{m['id']}", json={"rotary_axis": _rotary(export_at_deg=90.0)})
+    assert r.status_code == 200, r.text
+    with server.client("operator") as op:
+        r = op.post(f"/api/v1/setups/{sid}/export", json={"slot": "G54", "acknowledge_change": True})
+    assert r.status_code == 422 and r.json()["code"] == "rotary_axis_changed", r.text
+    assert "computed for C = 0°" in r.json()["detail"] and "C = 90°" in r.json()["detail"]
+    assert not list(folder.iterdir())  # nothing written
+    client.patch(f"/api/v1/machines/{m['id']}", json={"rotary_axis": _rotary()})
+    with server.client("operator") as op:  # back at the angle it was computed for: written
+        r = op.post(f"/api/v1/setups/{sid}/export", json={"slot": "G54", "acknowledge_change": True})
+    assert r.status_code == 200 and r.json()["status"] == "written", r.text
