@@ -160,6 +160,12 @@ class Controller(Protocol):
         Raises PositionUnavailable when this kind of controller cannot tell."""
         ...
 
+    def read_axis_deg(self, name: str) -> float:
+        """Where rotary axis ``name`` ("A", "B" or "C") is now, degrees, in machine coordinates (the
+        angle the kinematic chain takes, no work offset applied); never moves the machine.
+        Raises PositionUnavailable when this kind of controller cannot tell."""
+        ...
+
     def pause(self) -> None:
         """Hold a running program (feed hold)."""
         ...

@@ -176,6 +176,29 @@ class LinuxCncController:
             raise self._fail(f"unexpected answer while reading the position: {actual!r}") from None
         return MachinePosition(*tip, tuple(round(a - b, 6) for a, b in zip(spindle, tip)))
 
+    def read_axis_deg(self, name: str) -> float:
+        """Rotary axis ``name`` (A, B or C) in machine coordinates, degrees: ``get abs_act_pos`` answers
+        the actual position of X Y Z A B C (``stat.actual_position``), with no work offset applied. Reads
+        only (no MDI, no mode change), so it works while a program runs too."""
+        i = {"A": 3, "B": 4, "C": 5}.get(name)
+        if i is None:
+            raise ValueError(f"rotary axis name must be A, B or C, got {name!r}")
+        s = self._session()
+        try:
+            reply = s.get("abs_act_pos")
+        finally:
+            s.close()
+        fields = reply.split()
+        try:
+            if fields[0] != "ABS_ACT_POS" or len(fields) < 7:
+                raise ValueError
+            angle = float(fields[1 + i])
+        except (ValueError, IndexError):
+            raise self._fail(f"unexpected answer while reading the {name} axis: {reply!r}") from None
+        if not math.isfinite(angle):
+            raise self._fail(f"the {name} axis reads {angle}")
+        return angle
+
     def _one_command(self, command: str) -> None:
         s = self._session()
         try:

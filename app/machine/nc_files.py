@@ -340,6 +340,10 @@ class FileController:
         raise PositionUnavailable(f"{self.describe}: NC files in a folder are no live link, so the machine's "
                                   "position cannot be read here; type the position the controller shows")
 
+    def read_axis_deg(self, name: str) -> float:
+        raise PositionUnavailable(f"{self.describe}: NC files in a folder are no live link, so the {name} axis "
+                                  "cannot be read here; set the machine's rotary axis to angle_from 'operator'")
+
     def pause(self) -> None:
         raise self._fail("a file drop cannot pause the machine")
 

@@ -155,6 +155,10 @@ class OpcUaController:
         values = _run(self._with_client(lambda client, ua: self._read_numbers(client, ua, ids)))
         return MachinePosition(values["x"], values["y"], values["z"])
 
+    def read_axis_deg(self, name: str) -> float:
+        raise PositionUnavailable(f"{self.describe}: reading the {name} axis over OPC UA is not supported; "
+                                  "set the machine's rotary axis to angle_from 'operator' and type the angle")
+
     def write_offset(self, slot: str, offset: WorkOffset) -> None:
         ids = self._node_ids(slot)
         if self._closed:

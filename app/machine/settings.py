@@ -150,3 +150,62 @@ def make_controller(settings: dict | BaseModel) -> Controller:
     from app.machine.nc_files import FileController
 
     return FileController(s.dialect, s.folder)
+
+
+# ------------------------------------------------------------------ a rotary table in the kinematic chain
+Matrix4 = list[list[float]]
+#: no rotary axis or table lies 100 m from the machine's origin
+MAX_POSE_MM = 100_000.0
+
+
+class RotaryAxisSettings(_Strict):
+    """The rotary axis that carries the table (app/geometry/rotary_chain.py):
+    ``T_machine_table(angle) = T_machine_axis @ R(angle) @ T_axis_table``, R about the axis frame's x (A),
+    y (B) or z (C). ``angle_from``: where the angle at a picture comes from (read from the controller, or
+    typed by the operator); ``export_at_deg``: the angle the NC program expects the offset at."""
+
+    name: Literal["A", "B", "C"] = Field(description="the axis' name on the controller: C about Z, A about X, B about Y")
+    T_machine_axis: Matrix4 = Field(description="pose of the axis frame in machine coordinates, mm: its origin on "
+                                                "the axis, its x (A) / y (B) / z (C) along it, positive angles "
+                                                "turning the table right-handed about that direction")
+    T_axis_table: Matrix4 = Field(description="pose of the table frame in the axis frame at angle 0, mm")
+    angle_from: Literal["controller", "operator"] = Field(
+        "controller", description="controller: the service reads the axis when the picture is taken; "
+                                  "operator: the operator types the angle with the picture")
+    export_at_deg: float = Field(0.0, ge=-360.0, le=360.0, allow_inf_nan=False,
+                                 description="the axis angle at which the NC program expects the work offset, °")
+
+    @field_validator("T_machine_axis", "T_axis_table")
+    @classmethod
+    def _rigid(cls, v: Matrix4, info) -> Matrix4:
+        from app.geometry.transforms import PoseError, check_pose
+
+        try:
+            T = check_pose(v, info.field_name, tol=1e-5)
+        except PoseError as exc:
+            raise ValueError(f"must be a rigid 4x4 pose in mm ({exc})") from None
+        if abs(T[:3, 3]).max() > MAX_POSE_MM:  # a typing error (and beyond, the chain's sums overflow)
+            raise ValueError(f"translation {T[:3, 3].tolist()} mm is more than {MAX_POSE_MM / 1000:g} m from the origin")
+        return T.tolist()
+
+
+def parse_rotary_axis(value: dict | BaseModel | None) -> RotaryAxisSettings | None:
+    """Validate a machine's ``rotary_axis`` (None: the table does not turn); ValueError with every reason."""
+    if value is None or isinstance(value, RotaryAxisSettings):
+        return value
+    if isinstance(value, BaseModel):
+        value = value.model_dump()
+    try:
+        return RotaryAxisSettings.model_validate(value)
+    except ValidationError as exc:
+        reasons = [f"{'.'.join(str(p) for p in e['loc']) or 'rotary_axis'}: {e['msg'].removeprefix('Value error, ')}"
+                   for e in exc.errors()]
+        raise ValueError(f"rotary_axis is not valid: {'; '.join(reasons)}") from None
+
+
+def rotary_chain(value: dict | BaseModel | None):
+    """The :class:`app.geometry.rotary_chain.RotaryChain` of a machine's ``rotary_axis`` (None without one)."""
+    from app.geometry.rotary_chain import RotaryChain
+
+    s = parse_rotary_axis(value)
+    return None if s is None else RotaryChain(s.name, s.T_machine_axis, s.T_axis_table)

@@ -282,6 +282,7 @@ def probing_gcode(
     header: Sequence[str] = (),
     retract_z_mm: float | None = None,
     method: str = "profile",
+    axis_at: tuple[str, float] | None = None,
 ) -> ProbingProgram:
     """LinuxCNC program that visits ``touches`` in order from ``start_table`` and back to it.
 
@@ -292,7 +293,9 @@ def probing_gcode(
     closed set, never pasted). ``header``: comment lines (see app.planning.probing_safety.header_lines)
     written first. ``retract_z_mm``: table z of the tip for the first and last move (straight up or
     down at the unknown start position; default: the start's z). ``method``: travel planner,
-    "profile" (default) or "reference" (the reference method, for comparison).
+    "profile" (default) or "reference" (the reference method, for comparison). ``axis_at``: (name,
+    degrees) of a rotary table's axis (A, B or C) at which the table frame was placed in the machine:
+    the program aborts before any move unless the axis stands there (:func:`rotary_guard_lines`).
     """
     from app.machine.base import SLOT_P_NUMBERS
     from app.planning.probing_safety import comment
@@ -327,6 +330,7 @@ def probing_gcode(
         comment(f"{title}{' - DRY RUN: probe moves as G1 to the nominal contact' if dry_run else ''}"),
         "(units mm; positions are the probe tip = ball bottom; probe tool and its length offset must be active)",
         f"G21 G90 G17 G94 G40 {slot}",
+        *([] if axis_at is None else rotary_guard_lines(axis_at[0], axis_at[1], slot)),
     ]
 
     def prog(p_table):
@@ -369,6 +373,30 @@ def probing_gcode(
         lines.append("(PROBECLOSE)")
     lines += [f"G0 Z{_fmt(z_retract)}", "M2", "%"]
     return ProbingProgram(tuple(touches), tuple(travel), "\n".join(lines) + "\n", dry_run)
+
+
+#: how far (degrees) a rotary table may stand from the angle a probing program was planned for
+ROTARY_GUARD_TOL_DEG = 0.01
+
+
+def rotary_guard_lines(axis: str, angle_deg: float, slot: str) -> list[str]:
+    """LinuxCNC lines that abort a program (before it moves) unless rotary ``axis`` stands at ``angle_deg``
+    (machine coordinates, within ROTARY_GUARD_TOL_DEG): its position in the active frame (#5423-#5425 for
+    A, B, C) plus the slot's offset of that axis and the G92 offset when active is the machine position."""
+    from app.machine.base import SLOT_P_NUMBERS
+    from app.planning.probing_safety import comment
+
+    k = {"A": 3, "B": 4, "C": 5}.get(axis)
+    if k is None or not np.isfinite(angle_deg):
+        raise ValueError(f"rotary guard: axis must be A, B or C and the angle finite, got {axis!r} {angle_deg!r}")
+    g5x = 5201 + 20 * SLOT_P_NUMBERS[slot] + k
+    return [
+        comment(f"the table's {axis} axis must stand at {angle_deg:.3f} deg, where this program's frame was planned"),
+        f"#<setupcam_axis> = [#{5420 + k} + #{g5x} + #5210 * #{5211 + k}]",
+        f"o9001 if [ABS[#<setupcam_axis> - {angle_deg:.6f}] GT {ROTARY_GUARD_TOL_DEG:.6f}]",
+        f"(abort, the rotary table {axis} is not at {angle_deg:.3f} deg: turn it there, then start again)",
+        "o9001 endif",
+    ]
 
 
 def parse_probe_results(text: str) -> np.ndarray:

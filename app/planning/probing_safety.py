@@ -366,6 +366,7 @@ def plan_probing_program(
     method: str = "profile",
     unknown_note: str = "",
     speeds=None,
+    axis_at: tuple[str, float] | None = None,
 ):
     """A probing program planned only around what is known, or :class:`ProbingRefused`.
 
@@ -375,6 +376,8 @@ def plan_probing_program(
     T_prog_table : the program frame (the slot's frame); slot : its name (G54..G59.3).
     Refusal codes: no_touch_points, obstacle_not_located (an assumed obstacle is where a touch goes),
     touch_blocked (a located obstacle is), retract_above_travel, not_plannable, outside_travel.
+    axis_at : a rotary table's (axis, degrees) that T_machine_table is for: the program aborts unless
+    the axis stands there (app.planning.probing.rotary_guard_lines).
     Returns app.planning.probing.ProbingProgram; its G-code starts with :func:`header_lines`.
     """
     from app.planning.obstacles import height_grid_from_meshes
@@ -448,7 +451,7 @@ def plan_probing_program(
         centre = np.asarray(poses[workpiece_index], dtype=float)[:3, 3]
         program = probing_gcode(touches, grid, travel, (centre[0], centre[1], retract), params=params, speeds=speeds,
                                 dry_run=dry_run, wcs=slot, T_prog_table=T_prog_table, header=header,
-                                retract_z_mm=retract, title=title, method=method)
+                                retract_z_mm=retract, title=title, method=method, axis_at=axis_at)
     except ValueError as exc:
         raise ProbingRefused("not_plannable", str(exc)) from None
     T_table_prog = np.linalg.inv(np.asarray(T_prog_table, dtype=float))

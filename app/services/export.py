@@ -46,7 +46,8 @@ def require_confirmed(setup, use: str = "exported") -> None:
 def plausibility_reasons(setup, machine, settings) -> list[tuple[str, str]]:
     """Every (reason code, sentence) why the setup's offset must not be used; empty when it may.
     Codes: no_workpiece, tilt (the offset is not usable, e.g. tilted beyond the tolerance),
-    uncertainty_fail, outside_travel. The tilt is checked against the limit in force now (the machine's
+    uncertainty_fail, rotary_axis_changed (a rotary table's axis or export angle changed since the offset
+    was computed), outside_travel. The tilt is checked against the limit in force now (the machine's
     own or the global one), not the one of when the setup was located: an admin's change applies at once."""
     result = setup_result(setup)
     off = result.offset
@@ -65,6 +66,12 @@ def plausibility_reasons(setup, machine, settings) -> list[tuple[str, str]]:
     if wp is not None and not wp.uncertainty_pass:
         reasons.append(("uncertainty_fail", f"uncertainty too large ({wp.uncertainty_reason or 'unknown'}); "
                         "take another image with more of the part visible, or probe it"))
+    axis = getattr(machine, "rotary_axis", None)
+    if axis and (off.get("axis"), off.get("at_axis_deg")) != (axis["name"], float(axis["export_at_deg"])):
+        was = f"{off['axis']} = {off['at_axis_deg']:g}°" if off.get("axis") else "a table that did not turn"
+        why = (f"the offset was computed for {was}, but machine '{machine.name}' now expects offsets for "
+               f"{axis['name']} = {axis['export_at_deg']:g}°; take the picture again")
+        reasons.append(("rotary_axis_changed", why))
     at = WorkOffset(off["x_mm"], off["y_mm"], off["z_mm"], off["c_deg"])
     reasons += [("outside_travel", why) for why in travel_reasons(machine, at)]
     return reasons

@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from sqlmodel import Session, col, select
 
 from app.config import Settings
@@ -13,6 +14,7 @@ from app.geometry.table_figure import table_figure_svg
 from app.geometry.table_frame import TableFrameError, table_frame_from_points
 from app.geometry.transforms import PoseError, check_pose
 from app.machine import ControllerError, PositionUnavailable, make_controller, parse_controller_settings
+from app.machine.settings import parse_rotary_axis, rotary_chain
 from app.services import library
 from app.services.errors import Conflict, Invalid, NotFound, Unavailable
 from app.store.models import Camera, Machine, utcnow
@@ -114,6 +116,93 @@ def validate_controller(controller: dict | None) -> dict | None:
         raise Invalid(f"controller: {exc}") from None
 
 
+# ------------------------------------------------------------------ a rotary table in the kinematic chain
+#: the controller kinds that report a rotary axis' position (Controller.read_axis_deg)
+AXIS_READING_KINDS = ("linuxcnc",)
+#: the largest difference (mm, and the same in 1e-3 of a radian) a T_machine_table sent along with a rotary
+#: axis may have from the chain at the export angle it is derived from
+DERIVED_POSE_TOL = 1e-3
+
+
+def validate_rotary_axis(value: Any) -> dict | None:
+    """A machine's ``rotary_axis`` as stored (None: the table does not turn); Invalid with every reason."""
+    try:
+        s = parse_rotary_axis(value)
+    except ValueError as exc:
+        raise Invalid(str(exc)) from None
+    return None if s is None else s.model_dump(mode="json")
+
+
+def table_pose_at(machine: Machine, angle_deg: float | None = None) -> np.ndarray:
+    """``T_machine_table`` (4x4, mm) of ``machine`` with its rotary axis at ``angle_deg`` (None: the export
+    angle); the fixed ``T_machine_table`` of a machine whose table does not turn, whatever the angle."""
+    chain = rotary_chain(machine.rotary_axis)
+    if chain is None:
+        return np.asarray(machine.T_machine_table, float)
+    return chain.T_machine_table(machine.rotary_axis["export_at_deg"] if angle_deg is None else angle_deg)
+
+
+def picture_turn(machine: Machine, angle_deg: float | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """How the 3D view shows the table of a picture taken with the rotary axis at ``angle_deg``: the table's
+    pose at that angle seen from the table at the export angle (the view's world), 4x4 mm, and the axis of
+    rotation in that world as two points 500 mm either side of the axis frame's origin, (2, 3) mm. None
+    on a machine whose table does not turn, or when no angle was recorded."""
+    chain = rotary_chain(machine.rotary_axis)
+    if chain is None or angle_deg is None:
+        return None
+    export = machine.rotary_axis["export_at_deg"]
+    T_world_machine = np.linalg.inv(chain.T_machine_table(export))
+    ends = [chain.axis_point() + k * 500.0 * chain.axis_direction() for k in (-1.0, 1.0)]
+    axis = np.array([T_world_machine[:3, :3] @ p + T_world_machine[:3, 3] for p in ends])
+    return chain.turn(export, angle_deg), axis
+
+
+def _keep_chain_in_step(m: Machine, given_pose: Any) -> None:
+    """With a rotary axis ``T_machine_table`` is the chain at ``export_at_deg`` (what every offset, travel
+    check and probing plan uses); a pose given along must be that one (Invalid otherwise), and the axis'
+    ``angle_from`` must be one the controller can serve."""
+    if not m.rotary_axis:
+        return
+    derived = table_pose_at(m)
+    if given_pose is not None:
+        given = np.asarray(_pose(given_pose))
+        if np.max(np.abs(given[:3, 3] - derived[:3, 3])) > DERIVED_POSE_TOL or \
+                np.max(np.abs(given[:3, :3] - derived[:3, :3])) > DERIVED_POSE_TOL:
+            raise Invalid(f"T_machine_table: with a rotary axis the table's pose follows the axis "
+                          f"(T_machine_axis @ R{m.rotary_axis['name']}({m.rotary_axis['export_at_deg']:g}°) @ "
+                          f"T_axis_table = {np.round(derived, 4).tolist()}); leave T_machine_table out or send that one",
+                          code="table_pose_follows_axis")
+    m.T_machine_table = derived.tolist()
+    kind = (m.controller or {}).get("kind")
+    if m.rotary_axis["angle_from"] == "controller" and kind not in AXIS_READING_KINDS:
+        raise Invalid(f"rotary_axis.angle_from: 'controller' needs a controller that reports the "
+                      f"{m.rotary_axis['name']} axis ({', '.join(AXIS_READING_KINDS)}); this machine has "
+                      f"{f'a {kind} controller' if kind else 'no controller'}: use 'operator' (the operator types "
+                      "the angle with each picture)", code="angle_not_readable")
+
+
+def read_table_angle(session: Session, machine_id: int) -> tuple[str, float]:
+    """(axis name, degrees) of the machine's rotary axis now, read from its controller (machine coordinates):
+    409 (``no_rotary_axis``, ``position_unavailable``) when there is none or the controller cannot tell, 502
+    when it does not answer."""
+    m = get_machine(session, machine_id)
+    if not m.rotary_axis:
+        raise Conflict(f"machine {m.id} ({m.name}) has no rotary axis", code="no_rotary_axis")
+    if not m.controller:
+        raise Conflict(f"machine {m.id} ({m.name}) has no controller saved; type the angle the controller shows",
+                       code="no_controller")
+    name = m.rotary_axis["name"]
+    controller = make_controller(m.controller)
+    try:
+        return name, controller.read_axis_deg(name)
+    except PositionUnavailable as exc:
+        raise Conflict(str(exc), code="position_unavailable") from None
+    except ControllerError as exc:
+        raise Unavailable(f"reading the {name} axis: {exc}") from None
+    finally:
+        controller.close()
+
+
 def _check_table(session: Session, table_model_id: int, table_revision: int | None) -> int:
     model = library.get_model(session, table_model_id, include_deleted=False)
     if model.kind != "table":
@@ -142,16 +231,20 @@ def _pose(value: Any) -> list[list[float]]:
 
 def create_machine(session: Session, *, name: str, table_model_id: int, table_revision: int | None,
                    T_machine_table: Any, travel_mm: dict, camera_ids: list[int], controller: dict | None,
-                   **limits: float | None) -> Machine:
-    """A new machine; ``limits``: any of LIMIT_BOUNDS' names (None or left out: the global setting)."""
+                   rotary_axis: Any = None, **limits: float | None) -> Machine:
+    """A new machine; ``limits``: any of LIMIT_BOUNDS' names (None or left out: the global setting).
+    ``T_machine_table`` None: the identity, or with ``rotary_axis`` the chain at its export angle."""
     unknown = set(limits) - set(LIMIT_BOUNDS)
     if unknown:
         raise Invalid(f"unknown machine field(s): {', '.join(sorted(unknown))}")
+    rotary = validate_rotary_axis(rotary_axis)
     m = Machine(name=name, table_model_id=table_model_id,
                 table_revision=_check_table(session, table_model_id, table_revision),
-                T_machine_table=_pose(T_machine_table), travel_mm=validate_travel(travel_mm),
+                T_machine_table=_pose(np.eye(4) if T_machine_table is None else T_machine_table),
+                travel_mm=validate_travel(travel_mm),
                 camera_ids=_check_cameras(session, camera_ids), controller=validate_controller(controller),
-                **{k: validate_limit(k, v) for k, v in limits.items()})
+                rotary_axis=rotary, **{k: validate_limit(k, v) for k, v in limits.items()})
+    _keep_chain_in_step(m, T_machine_table)
     session.add(m)
     session.flush()
     return m
@@ -190,6 +283,9 @@ def update_machine(session: Session, machine_id: int, changes: dict[str, Any]) -
     for name in LIMIT_BOUNDS:
         if name in changes:  # null: back to the global setting
             setattr(m, name, validate_limit(name, changes[name]))
+    if "rotary_axis" in changes:  # null: the table stops turning, its pose stays where the chain put it
+        m.rotary_axis = validate_rotary_axis(changes["rotary_axis"])
+    _keep_chain_in_step(m, changes.get("T_machine_table"))
     session.add(m)
     session.flush()
     return m

@@ -243,7 +243,10 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
             sigma_mm=sig, assumed=assumed, T_machine_table=np.asarray(machine.T_machine_table, dtype=float),
             travel_mm=machine.travel_mm, T_prog_table=program_frame(machine, off), slot=slot, clearance_mm=clearance,
             dry_run=dry_run, frame_text=frame, title=f"setupcam probing, setup {setup_id}",
-            unknown_note="" if s.models else "objects not asked for in the setup are not known to the planner")
+            unknown_note="" if s.models else "objects not asked for in the setup are not known to the planner",
+            # a rotary table: the frame is the table at the export angle, so the program runs only there
+            axis_at=(machine.rotary_axis["name"], float(machine.rotary_axis["export_at_deg"]))
+            if machine.rotary_axis else None)
     except ProbingRefused as exc:
         raise Invalid(f"probing program refused: {exc}", code=exc.code) from None
 

@@ -8,6 +8,7 @@ each result revision.
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any
 
 import cv2
@@ -22,7 +23,7 @@ from app.services.audit import audit
 from app.services.cameras import read_image, get_camera, grab_frame, image_media_type
 from app.services.errors import Conflict, Invalid, NotFound
 from app.services.jobs import JobContext, JobRun, JobStopped, Outcome, create_job
-from app.services.machines import Limit, get_machine, machine_limit
+from app.services.machines import Limit, get_machine, machine_limit, read_table_angle, table_pose_at
 from app.services.setup_result import LocatedObject, SetupResult
 from app.store.db import session_scope
 from app.store.files import FileStore
@@ -41,10 +42,42 @@ def png_bytes(image: np.ndarray) -> bytes:
     return cv2.imencode(".png", image)[1].tobytes()
 
 
+#: a rotary axis angle beyond this is a typing error (100 turns)
+MAX_TABLE_ANGLE_DEG = 36_000.0
+
+
+def table_angle(session: Session, machine, typed_deg: float | None) -> tuple[float | None, str | None]:
+    """(degrees, "controller" | "operator") of the machine's rotary axis for a picture taken now; (None, None)
+    on a machine whose table does not turn. The operator types it (``typed_deg``) or the service reads the
+    controller, as the machine's ``rotary_axis.angle_from`` says; the other way is refused with the reason."""
+    axis = machine.rotary_axis
+    if not axis:
+        if typed_deg is not None:
+            raise Invalid(f"table_angle_deg: machine {machine.id} ({machine.name}) has no rotary axis; leave it out",
+                          code="no_rotary_axis")
+        return None, None
+    if axis["angle_from"] == "operator":
+        if typed_deg is None:
+            raise Invalid(f"table_angle_deg: type the {axis['name']} angle the controller shows (degrees); machine "
+                          f"{machine.id} ({machine.name}) takes it from the operator", code="table_angle_required")
+        if not (math.isfinite(typed_deg) and abs(typed_deg) <= MAX_TABLE_ANGLE_DEG):
+            raise Invalid(f"table_angle_deg: must be a number within ±{MAX_TABLE_ANGLE_DEG:g}°, got {typed_deg}")
+        return float(typed_deg), "operator"
+    if typed_deg is not None:
+        raise Invalid(f"table_angle_deg: machine {machine.id} ({machine.name}) reads the {axis['name']} angle from "
+                      "its controller; leave it out", code="table_angle_from_controller")
+    return read_table_angle(session, machine.id)[1], "controller"
+
+
 def create_setup(session: Session, files: FileStore, *, machine_id: int, camera_id: int | None,
-                 model_ids: list[int], image: bytes | None, grab: bool, created_by: str | None = None) -> Setup:
-    """Validate everything a job needs up front (4xx with the reason), store the capture, queue the job."""
+                 model_ids: list[int], image: bytes | None, grab: bool, created_by: str | None = None,
+                 table_angle_deg: float | None = None) -> Setup:
+    """Validate everything a job needs up front (4xx with the reason), store the capture, queue the job.
+    On a machine with a rotary table the axis angle at the picture is recorded (typed or read, see
+    :func:`table_angle`); it places the table in the 3D view, the offset is computed at the export angle."""
     machine = get_machine(session, machine_id)
+    if table_angle_deg is not None and not math.isfinite(table_angle_deg):
+        raise Invalid(f"table_angle_deg: must be a finite number, got {table_angle_deg}")
     if camera_id is None:
         if not machine.camera_ids:
             raise Invalid(f"machine {machine_id} has no camera; give camera_id", code="no_camera")
@@ -64,6 +97,10 @@ def create_setup(session: Session, files: FileStore, *, machine_id: int, camera_
         raise Invalid("give an image or grab=true, not both")
     if image is None and not grab:
         raise Invalid("no image: upload one or set grab=true to take one from the camera")
+    typed = bool(machine.rotary_axis) and machine.rotary_axis["angle_from"] == "operator"
+    angle = angle_from = None
+    if typed:
+        angle, angle_from = table_angle(session, machine, table_angle_deg)  # a typing error before a grab
     if grab:
         frame, origin = grab_frame(cam), "grab"
         data = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
@@ -77,12 +114,14 @@ def create_setup(session: Session, files: FileStore, *, machine_id: int, camera_
     if (w, h) != (cam.intrinsics["width"], cam.intrinsics["height"]):
         raise Invalid(f"image is {w} x {h} px but camera {cam.id} is calibrated for "
                       f"{cam.intrinsics['width']} x {cam.intrinsics['height']} px", code="image_size_mismatch")
+    if not typed:
+        angle, angle_from = table_angle(session, machine, table_angle_deg)  # read right after a grab
     cap = Capture(camera_id=cam.id, image_sha256=files.put(session, data, image_media_type(data)), width=w, height=h,
                   origin=origin)
     session.add(cap)
     session.flush()
     setup = Setup(machine_id=machine.id, camera_id=cam.id, capture_id=cap.id, intrinsics=cam.intrinsics,
-                  models=models, created_by=created_by)
+                  models=models, created_by=created_by, table_angle_deg=angle, table_angle_from=angle_from)
     session.add(setup)
     session.flush()
     return setup
@@ -257,9 +296,12 @@ def uncertainty_check(obj: LocatedObject, max_sigma_mm: float, max_sigma_deg: fl
     return (not worst, "; ".join(worst))
 
 
-def proposed_offset(result: SetupResult, T_machine_table: list, max_tilt: Limit) -> dict | None:
+def proposed_offset(result: SetupResult, T_machine_table: list, max_tilt: Limit,
+                    rotary_axis: dict | None = None) -> dict | None:
     """The work offset of the first located workpiece: X, Y, Z, C (+ tilt) in machine coordinates, checked
-    against ``max_tilt`` (the machine's own or the global limit; a refusal names which)."""
+    against ``max_tilt`` (the machine's own or the global limit; a refusal names which). On a machine with a
+    ``rotary_axis`` ``T_machine_table`` is the chain at its ``export_at_deg``, the angle the offset is for
+    (``axis`` and ``at_axis_deg`` in the answer)."""
     wp = result.workpiece()
     if wp is None:
         return None
@@ -272,6 +314,8 @@ def proposed_offset(result: SetupResult, T_machine_table: list, max_tilt: Limit)
            "max_tilt_deg": max_tilt_deg, "max_tilt_from": max_tilt.source,
            "T_machine_datum": off.T_machine_datum.tolist(), "datum_defined": bool(wp.T_obj_datum),
            "datum_ambiguous": wp.datum_ambiguous, "datum_note": wp.datum_note or "", "datum_choices": []}
+    if rotary_axis:
+        out["axis"], out["at_axis_deg"] = rotary_axis["name"], float(rotary_axis["export_at_deg"])
     if wp.datum_undecided():  # the offset each equivalent pose would give: the operator picks one
         for T in wp.datum_candidates():
             o = work_offset_from_poses(T_machine_table, T, wp.datum, max_tilt_deg=max_tilt_deg)
@@ -324,7 +368,8 @@ def review(result: SetupResult, machine, settings) -> SetupResult:
         if o.probe_fail:  # probing showed the part does not sit as this pose says
             ok, why = False, f"probing: {o.probe_fail}"
         o.uncertainty_pass, o.uncertainty_reason = ok, why
-    result.offset = proposed_offset(result, machine.T_machine_table, machine_limit(machine, settings, "max_tilt_deg"))
+    result.offset = proposed_offset(result, table_pose_at(machine), machine_limit(machine, settings, "max_tilt_deg"),
+                                    getattr(machine, "rotary_axis", None))
     return result
 
 

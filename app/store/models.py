@@ -119,6 +119,9 @@ class Machine(SQLModel, table=True):
     max_tilt_deg: float | None = Field(default=None, description="Residual tilt a 3-axis offset may ignore, °")
     max_offset_change_mm: float | None = Field(default=None, description="X/Y/Z change without acknowledgement, mm")
     max_offset_change_deg: float | None = Field(default=None, description="C change without acknowledgement, °")
+    # the rotary axis carrying the table (app.machine.settings.RotaryAxisSettings); None: the table does not
+    # turn. With one, T_machine_table is the chain at its export_at_deg (kept in step by the service)
+    rotary_axis: dict | None = json_field()
     created_at: datetime = Field(default_factory=utcnow)
     deleted_at: datetime | None = None
 
@@ -157,6 +160,10 @@ class Setup(SQLModel, table=True):
     result_revision: int = 0
     history: list[dict] = json_field(default_factory=list, nullable=False,
                                      description="Earlier result revisions, oldest first")
+    # a machine with a rotary table: the axis angle when the picture was taken (degrees, machine coordinates)
+    # and where it came from ("controller" | "operator"); None on a machine whose table does not turn
+    table_angle_deg: float | None = None
+    table_angle_from: str | None = Field(default=None, max_length=20)
     confirmed_revision: int | None = None
     confirmed_by: str | None = Field(default=None, max_length=200)
     confirmed_at: datetime | None = None

@@ -17,7 +17,7 @@ from app.services import library, planning
 from app.services import setups as setup_svc
 from app.services.cameras import read_image
 from app.services.errors import ServiceError
-from app.services.machines import get_machine
+from app.services.machines import get_machine, picture_turn
 from app.services.transaction import transaction
 from app.viewer.scene import DEFAULT_OBJECT_RGB, TOUCH_RGB, SetupView, ViewCamera, ViewObject, ViewPath
 
@@ -129,9 +129,12 @@ def load_setup_view(engine, files, meshes: MeshCache, setup_id: int,
                                     K=np.asarray(s.intrinsics["K"], float), width=int(s.intrinsics["width"]),
                                     height=int(s.intrinsics["height"]), image_rgb=img[:, :, ::-1].copy())
             paths, why = probing_paths(session, files, s, plans, settings)
+            turn = picture_turn(machine, s.table_angle_deg)  # a rotary table: shown turned as at the picture
+            placed = {} if turn is None else {"T_world_table": turn[0], "axis_mm": turn[1]}
             return SetupView(title=f"Setup {s.id}", revision=s.result_revision, table_mesh=table_mesh,
                              objects=tuple(objects), camera=camera, editable=editable, paths=paths,
-                             notes=(why,) if why else (), version=(s.result_revision, s.confirmed_revision))
+                             notes=(why,) if why else (), version=(s.result_revision, s.confirmed_revision),
+                             **placed)
     except ServiceError as exc:
         return exc.detail if isinstance(exc.detail, str) else str(exc.detail)
 

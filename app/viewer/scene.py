@@ -12,6 +12,12 @@ Scene tree (names are stable, tests look them up in the browser):
 * ``/camera``                      the camera frustum at ``inv(T_cam_table)`` showing the image
 * ``/paths/{name}``                planned paths (e.g. the probing program's safe travel and its touch
                                    moves) as line segments, table frame
+* ``/rotary_axis``                 a machine with a rotary table: its axis of rotation, as a line
+
+A table on a rotary axis is shown turned as it was at the picture: the world is then the table frame at
+the machine's export angle, and everything on the table (the table, its objects, the camera that saw it,
+the paths) is placed through ``SetupView.T_world_table`` (docs/rotary-tables.md); a gizmo move is
+handed back in the table frame. Identity otherwise, so the world is the table frame as before.
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ DEFAULT_OBJECT_RGB = (40, 200, 60)
 FRUSTUM_IMAGE_WIDTH_PX = 480     # the camera image shown on the frustum is downscaled to this width
 TRAVEL_RGB = (30, 110, 240)
 TOUCH_RGB = (240, 140, 0)
+AXIS_RGB = (150, 60, 200)
 
 
 def pose_to_viser(T_a_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -97,6 +104,14 @@ class SetupView:
     notes: tuple[str, ...] = field(default_factory=tuple)
     paths: tuple[ViewPath, ...] = ()
     version: tuple = ()       # changes whenever what is shown changes (the viewer polls it)
+    # a rotary table: the table at the picture's angle seen from the world (the table at the export angle),
+    # and the axis of rotation as two points in the world (mm); identity and None otherwise
+    T_world_table: np.ndarray = field(default_factory=lambda: np.eye(4))
+    axis_mm: np.ndarray | None = None
+
+    def world(self, T_table_x: np.ndarray) -> np.ndarray:
+        """A pose in the table frame -> the same in the world the viewer shows (4x4, mm)."""
+        return np.asarray(self.T_world_table, float) @ np.asarray(T_table_x, float)
 
 
 @dataclass(eq=False)
@@ -125,10 +140,15 @@ def _downscale(image_rgb: np.ndarray, width_px: int) -> np.ndarray:
     return cv2.resize(image_rgb, (width_px, round(h * width_px / w)), interpolation=cv2.INTER_AREA)
 
 
-def _add_mesh(scene, name: str, mesh: trimesh.Trimesh, rgb) -> Any:
+def _add_mesh(scene, name: str, mesh: trimesh.Trimesh, rgb, T_parent_mesh: np.ndarray | None = None) -> Any:
+    """A mesh (vertices in mm, its own frame) under ``name``, placed at ``T_parent_mesh`` (default: as is)."""
     verts = np.asarray(mesh.vertices, np.float32) * M_PER_MM
+    place = {}
+    if T_parent_mesh is not None and not np.allclose(T_parent_mesh, np.eye(4)):
+        wxyz, pos = pose_to_viser(T_parent_mesh)
+        place = {"wxyz": wxyz, "position": pos}
     return scene.add_mesh_simple(name, verts, np.asarray(mesh.faces, np.uint32), color=tuple(int(c) for c in rgb),
-                                 flat_shading=True)
+                                 flat_shading=True, **place)
 
 
 def scene_extent_m(view: SetupView) -> tuple[np.ndarray, float]:
@@ -142,7 +162,11 @@ def scene_extent_m(view: SetupView) -> tuple[np.ndarray, float]:
         pts.append(corners @ np.asarray(o.T_table_obj)[:3, :3].T + np.asarray(o.T_table_obj)[:3, 3])
     if not pts:
         return np.zeros(3), 0.5
-    p = np.vstack(pts) * M_PER_MM
+    if view.table_mesh is not None:  # the table's bounding box by its corners too, so that it turns with it
+        b = pts[0]
+        pts[0] = np.array([[x, y, z] for x in b[:, 0] for y in b[:, 1] for z in b[:, 2]])
+    W = np.asarray(view.T_world_table, float)
+    p = (np.vstack(pts) @ W[:3, :3].T + W[:3, 3]) * M_PER_MM
     lo, hi = p.min(axis=0), p.max(axis=0)
     return (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2) or 0.5
 
@@ -156,11 +180,12 @@ def build_setup_scene(scene, view: SetupView,
     """
     scene.set_up_direction("+z")
     if view.table_mesh is not None:
-        _add_mesh(scene, "/table", view.table_mesh, TABLE_RGB)
+        _add_mesh(scene, "/table", view.table_mesh, TABLE_RGB, view.T_world_table)
     frames = []
     gizmo_index = None
+    W_inv = inv(check_pose(np.asarray(view.T_world_table, float), "T_world_table"))
     for i, obj in enumerate(view.objects):
-        wxyz, pos = pose_to_viser(obj.T_table_obj)
+        wxyz, pos = pose_to_viser(view.world(obj.T_table_obj))
         name = f"/objects/o{i}"
         if view.editable == i:
             radius = float(np.linalg.norm(obj.mesh.extents)) * M_PER_MM
@@ -172,7 +197,7 @@ def build_setup_scene(scene, view: SetupView,
 
                 def _moved(event, index=index) -> None:
                     if getattr(event, "phase", "end") == "end":
-                        on_move(index, viser_to_pose(event.target.wxyz, event.target.position))
+                        on_move(index, W_inv @ viser_to_pose(event.target.wxyz, event.target.position))
 
                 handle.on_update(_moved)
         else:
@@ -182,19 +207,23 @@ def build_setup_scene(scene, view: SetupView,
     frustum = None
     if view.camera is not None:
         g = frustum_geometry(view.camera)
-        wxyz, pos = pose_to_viser(g["T_table_cam"])
+        wxyz, pos = pose_to_viser(view.world(g["T_table_cam"]))
         image = None if view.camera.image_rgb is None else _downscale(view.camera.image_rgb, FRUSTUM_IMAGE_WIDTH_PX)
         frustum = scene.add_camera_frustum("/camera", fov=g["fov_rad"], aspect=g["aspect"], scale=0.1,
                                            thickness=2.0, thickness_units="screen", image=image, wxyz=wxyz,
                                            position=pos, color=FRUSTUM_RGB)
     handles = SceneHandles(frames=frames, gizmo_index=gizmo_index, frustum=frustum, scene=scene)
     _add_paths(handles, view)
+    if view.axis_mm is not None:
+        seg = (np.asarray(view.axis_mm, float).reshape(1, 2, 3) * M_PER_MM).astype(np.float32)
+        scene.add_line_segments("/rotary_axis", seg, colors=AXIS_RGB, thickness=2.0, thickness_units="screen")
     return handles
 
 
 def _add_paths(handles: SceneHandles, view: SetupView) -> None:
+    W = np.asarray(view.T_world_table, float)
     for p in view.paths:
-        pts = np.asarray(p.points_mm, float).reshape(-1, 3) * M_PER_MM
+        pts = (np.asarray(p.points_mm, float).reshape(-1, 3) @ W[:3, :3].T + W[:3, 3]) * M_PER_MM
         if len(pts) < 2:
             continue
         segs = np.stack([pts[:-1], pts[1:]], axis=1).astype(np.float32)     # (N-1, 2, 3)
@@ -215,7 +244,7 @@ def update_paths(handles: SceneHandles, view: SetupView) -> None:
 def move_objects(handles: SceneHandles, view: SetupView) -> None:
     """Put the objects of an already built scene at the poses of ``view`` (a newer revision)."""
     for handle, obj in zip(handles.frames, view.objects):
-        wxyz, pos = pose_to_viser(obj.T_table_obj)
+        wxyz, pos = pose_to_viser(view.world(obj.T_table_obj))
         handle.wxyz = wxyz
         handle.position = pos
     if handles.frustum is not None and view.camera is not None and view.camera.image_rgb is not None:
@@ -234,7 +263,7 @@ def initial_camera(view: SetupView, fov_rad: float | None = None, aspect: float 
     centre, radius = scene_extent_m(view)
     az = np.radians(-60.0)
     if view.camera is not None:
-        cam = frustum_geometry(view.camera)["T_table_cam"][:3, 3] * M_PER_MM
+        cam = view.world(frustum_geometry(view.camera)["T_table_cam"])[:3, 3] * M_PER_MM
         az = np.arctan2(cam[1] - centre[1], cam[0] - centre[0]) + np.radians(70.0)
     el = np.radians(40.0)
     d = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])

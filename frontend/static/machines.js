@@ -82,6 +82,36 @@ function fieldsFromPose(T) {
   $("tilt-note").textContent = tilted ? "This table is tilted against the machine's Z; saving here sets it level." : "";
 }
 
+const IDENTITY = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]];
+const matrixText = (T) => "[" + T.map((row) => JSON.stringify(row.map((v) => +v.toFixed(6)))).join(",\n ") + "]";
+
+/** The rotary fields shown when the table sits on an axis; the table pose fields are then derived. */
+function showRotaryFields() {
+  const on = $("r-on").checked;
+  for (const e of document.querySelectorAll(".rotary")) e.classList.toggle("hidden", !on);
+  for (const id of ["t-x", "t-y", "t-z", "t-c", "from-points"]) $(id).disabled = on;
+  for (const b of document.querySelectorAll(".read-pos")) b.classList.toggle("hidden", on);
+}
+
+function fillRotary(axis) {
+  $("r-on").checked = !!axis;
+  $("r-name").value = axis ? axis.name : "C";
+  $("r-from").value = axis ? axis.angle_from : "controller";
+  $("r-export").value = axis ? axis.export_at_deg : 0;
+  $("r-axis").value = matrixText(axis ? axis.T_machine_axis : IDENTITY);
+  $("r-table").value = matrixText(axis ? axis.T_axis_table : IDENTITY);
+  showRotaryFields();
+}
+
+/** The rotary axis as the API takes it (null: the table does not turn); the service checks the poses. */
+function rotaryFromFields() {
+  if (!$("r-on").checked) return null;
+  if ($("r-export").validity.badInput) throw new Error("The export angle is not a number.");
+  return { name: $("r-name").value, angle_from: $("r-from").value, export_at_deg: Number($("r-export").value),
+           T_machine_axis: parseJSONField($("r-axis").value, "T_machine_axis"),
+           T_axis_table: parseJSONField($("r-table").value, "T_axis_table") };
+}
+
 function showControllerFields() {
   const kind = $("c-kind").value;
   for (const e of document.querySelectorAll(".ctl")) e.classList.toggle("hidden", !e.classList.contains(kind));
@@ -112,6 +142,7 @@ function fillForm(m) {
                                 : "Save the machine with a controller first (or type the position)";
   }
   say("#read-msg", ""); $("frame-notes").replaceChildren(); $("table-figure").classList.add("hidden");
+  fillRotary(m ? m.rotary_axis : null);
   for (const a of AXES) {
     if (m) { $(`tr-${a}0`).value = m.travel_mm[a][0]; $(`tr-${a}1`).value = m.travel_mm[a][1]; }
   }
@@ -150,10 +181,12 @@ function drawCards() {
     const cams = m.camera_ids.length ? `${m.camera_ids.length} camera(s)` : "no camera yet";
     const ctl = m.controller ? m.controller.kind : "no controller";
     const own = Object.entries(LIMITS).filter(([n]) => m[n] !== null).map(([n, [what, unit]]) => `${what} ${m[n]}${unit}`);
+    const r = m.rotary_axis;
+    const rotary = r ? ` · rotary ${r.name} (angle ${r.angle_from === "operator" ? "typed" : "read"}, offsets for ${r.name} = ${r.export_at_deg}°)` : "";
     box.append(el("div", { class: "card", "data-testid": "machine-card" },
       el("h2", { text: m.name }),
       el("p", { class: "muted", text: `Travel X ${m.travel_mm.x[0]}…${m.travel_mm.x[1]} mm · ${cams} · ${ctl}`
-                                      + (own.length ? ` · own limits: ${own.join(", ")}` : "") }),
+                                      + rotary + (own.length ? ` · own limits: ${own.join(", ")}` : "") }),
       el("div", { class: "row" },
         el("a", { class: "button primary", href: `/setup?machine=${m.id}`, text: "Set up here" }),
         el("a", { class: "button", href: `/history?machine=${m.id}`, text: "History" }),
@@ -171,6 +204,7 @@ async function load() {
 }
 
 $("c-kind").addEventListener("change", showControllerFields);
+$("r-on").addEventListener("change", showRotaryFields);
 for (const name of Object.keys(LIMITS)) limitField(name).addEventListener("input", showLimitsInForce);
 $("from-points").addEventListener("click", async () => {
   try {
@@ -184,14 +218,16 @@ $("close").addEventListener("click", () => $("machine-form").classList.add("hidd
 $("machine-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
   try {
+    const rotary = rotaryFromFields();
     const body = {
       name: $("m-name").value.trim(), table_model_id: Number($("m-table").value),
       camera_ids: [...$("m-cameras").querySelectorAll("input:checked")].map((i) => Number(i.value)),
-      T_machine_table: poseFromFields(),
       travel_mm: Object.fromEntries(AXES.map((a) => [a, [Number($(`tr-${a}0`).value), Number($(`tr-${a}1`).value)]])),
       controller: controllerFromFields(),
+      rotary_axis: rotary,
       ...limitsFromFields(),
     };
+    if (!rotary) body.T_machine_table = poseFromFields();  // with an axis the service derives it
     const m = await saveJSON("/api/v1/machines", state.editing && state.editing.id, body);
     await load();
     fillForm(state.machines.find((x) => x.id === m.id));

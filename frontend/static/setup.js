@@ -14,6 +14,9 @@ const CODE_ADVICE = {
   camera_upload_only: CAMERA_ADVICE,
   no_camera: "An admin adds a camera to this machine on the Machines page.",
   image_size_mismatch: "Use a picture from this machine's camera at its full resolution.",
+  table_angle_required: "Type the rotary table's angle as the controller shows it, then take the picture again.",
+  position_unavailable: "An admin sets this machine's rotary axis to take the angle from the operator.",
+  unavailable: "Check that the controller is on and connected.",
 };
 const MARKER_ADVICE = "Move the camera so that more table markers are in the picture, clean the markers, or add light; then take the picture again.";
 const PART_ADVICE = "Check that the right part is chosen and that it is well lit and not hidden, then take the picture again.";
@@ -68,12 +71,41 @@ function chosenModels() {
   return ids;
 }
 
+/** The chosen machine's rotary axis (null when its table does not turn). */
+function rotaryAxis() {
+  const m = state.machines.find((x) => String(x.id) === $("machine").value);
+  return (m && m.rotary_axis) || null;
+}
+
+/** A machine with a rotary table: the operator types the angle, or it is read from the controller (shown now). */
+async function showAngleBox() {
+  const axis = rotaryAxis();
+  $("angle-box").classList.toggle("hidden", !axis);
+  if (!axis) return;
+  for (const e of document.querySelectorAll(".angle-axis")) e.textContent = axis.name;
+  const typed = axis.angle_from === "operator";
+  $("angle-typed").classList.toggle("hidden", !typed);
+  const export_ = `offsets are for ${axis.name} = ${fmt(axis.export_at_deg, 3)}°`;
+  $("angle-note").textContent = typed ? `(${export_})` : `${axis.name} is read from the controller with the picture; ${export_}.`;
+  try {
+    const now = await api(`/api/v1/machines/${$("machine").value}/rotary-axis`);
+    $("angle-note").textContent += ` The controller shows ${axis.name} ${fmt(now.angle_deg, 3)}° now.`;
+  } catch (e) {
+    if (!typed) $("angle-note").textContent += ` It cannot be read now: ${e.message}`;
+  }
+}
+
 async function start(grab, file) {
   const machine = $("machine").value;
   if (!machine) return fail("Choose the machine first.");
+  const axis = rotaryAxis();
+  const typed = axis && axis.angle_from === "operator";
+  if (typed && ($("table-angle").value.trim() === "" || $("table-angle").validity.badInput))
+    return fail(`Type the table angle ${axis.name} (degrees, as the controller shows it) before the picture.`);
   const ids = chosenModels();
   const form = new FormData();
   form.append("machine_id", machine);
+  if (typed) form.append("table_angle_deg", $("table-angle").value.trim());
   if (ids.length) form.append("model_ids", ids.join(","));
   if (grab) form.append("grab", "true");
   if (file) form.append("image", file);
@@ -271,6 +303,12 @@ function fillOffset(off, wp) {
   if (off && off.datum_ambiguous && !(off.datum_choices || []).length && off.datum_note) notes.push(`Note: ${off.datum_note}.`);
   if (off && off.datum_defined === false) notes.push("This part has no datum in the library: the offset is its model origin.");
   if (off && off.tilt_deg !== undefined) notes.push(`Tilt ${fmt(off.tilt_deg, 3)}°.`);
+  const s = state.setup;
+  if (off && off.axis) {
+    const at = s && s.table_angle_deg !== null && s.table_angle_deg !== undefined
+      ? ` (picture taken at ${off.axis} = ${fmt(s.table_angle_deg, 3)}°, ${s.table_angle_from === "operator" ? "typed by the operator" : "read from the controller"})` : "";
+    notes.push(`Offset for ${off.axis} = ${fmt(off.at_axis_deg, 3)}°${at}.`);
+  }
   if (!cur) notes.push(state.current && state.current.why ? `Controller: ${state.current.why}` : "Controller not read yet.");
   $("offset-note").textContent = notes.join(" ");
 }
@@ -446,7 +484,11 @@ document.addEventListener("DOMContentLoaded", async () => {
       const s = state.setup;
       if (s && s.status === "located") readController(s, s.result.offset, s.result.objects[workpieceIndex(s.result)], true);
     });
-    $("machine").addEventListener("change", () => localStorage.setItem("setupcam.machine", $("machine").value));
+    $("machine").addEventListener("change", () => {
+      localStorage.setItem("setupcam.machine", $("machine").value);
+      showAngleBox();
+    });
+    showAngleBox();
     if ($("machine").value) localStorage.setItem("setupcam.machine", $("machine").value);
   } catch (e) {
     fail(e.message);

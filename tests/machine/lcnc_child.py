@@ -34,6 +34,8 @@ def _status(s):
         "exec_state": s.exec_state, "paused": bool(s.paused), "g5x_index": s.g5x_index,
         "g5x_offset": list(s.g5x_offset[:3]), "rotation_xy": s.rotation_xy,
         "position": list(s.position[:3]), "actual_position": list(s.actual_position[:3]),
+        "rotary_position": list(s.actual_position[3:6]), "probed_position": list(s.probed_position[:3]),
+        "probe_tripped": bool(s.probe_tripped),
         "tool_offset": list(s.tool_offset[:3]), "g92_offset": list(s.g92_offset[:3]), "homed": list(s.homed[:3]), "current_vel": s.current_vel,
         "interp_idle": s.interp_state == linuxcnc.INTERP_IDLE,
         "interp_paused": s.interp_state == linuxcnc.INTERP_PAUSED,

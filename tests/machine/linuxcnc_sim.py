@@ -81,7 +81,7 @@ HALFILE = LIB:basic_sim.tcl -no_use_hal_manualtoolchange
 HALFILE = simprobe.hal
 
 [TRAJ]
-COORDINATES = X Y Z
+COORDINATES = {coordinates}
 LINEAR_UNITS = mm
 ANGULAR_UNITS = degree
 DEFAULT_LINEAR_VELOCITY = 100
@@ -90,8 +90,8 @@ DEFAULT_LINEAR_ACCELERATION = 1000
 MAX_LINEAR_ACCELERATION = 1000
 
 [KINS]
-KINEMATICS = trivkins coordinates=XYZ
-JOINTS = 3
+KINEMATICS = trivkins coordinates={kins}
+JOINTS = {joints}
 """
 
 _AXIS = """
@@ -102,7 +102,7 @@ MIN_LIMIT = {lo}
 MAX_LIMIT = {hi}
 
 [JOINT_{joint}]
-TYPE = LINEAR
+TYPE = {type}
 HOME = 0.0
 MAX_VELOCITY = 100
 MAX_ACCELERATION = 1000
@@ -117,6 +117,8 @@ HOME_SEQUENCE = 0
 """
 
 TRAVEL_MM = {"X": (-500.0, 500.0), "Y": (-500.0, 500.0), "Z": (-300.0, 300.0)}
+#: a rotary axis the XYZC sim adds (degrees; LinuxCNC's usual "unlimited" rotary limits)
+ROTARY_TRAVEL_DEG = (-9999.0, 9999.0)
 
 
 def _linuxcnc_module_python() -> str | None:
@@ -153,7 +155,11 @@ class SimError(RuntimeError):
 class LinuxCncSim:
     """Start/stop one simulated LinuxCNC; ``settings`` is what the service stores for the machine."""
 
-    def __init__(self, workdir: Path, port: int | None = None, lock_timeout_s: float = 180.0):
+    def __init__(self, workdir: Path, port: int | None = None, lock_timeout_s: float = 180.0,
+                 coordinates: str = "XYZ"):
+        if coordinates not in ("XYZ", "XYZA", "XYZB", "XYZC"):
+            raise ValueError(f"coordinates must be XYZ or XYZ plus one rotary axis, got {coordinates!r}")
+        self.coordinates = coordinates
         self.workdir = Path(workdir)
         self.port = port or free_port()
         self.host = "127.0.0.1"
@@ -198,9 +204,12 @@ class LinuxCncSim:
 
     def _write_config(self) -> Path:
         self.workdir.mkdir(parents=True, exist_ok=True)
-        text = _INI.format(port=self.port)
-        for joint, (axis, (lo, hi)) in enumerate(TRAVEL_MM.items()):
-            text += _AXIS.format(axis=axis, joint=joint, lo=lo, hi=hi)
+        text = _INI.format(port=self.port, coordinates=" ".join(self.coordinates), kins=self.coordinates,
+                           joints=len(self.coordinates))
+        travel = {**TRAVEL_MM, **{a: ROTARY_TRAVEL_DEG for a in self.coordinates[3:]}}
+        for joint, axis in enumerate(self.coordinates):
+            lo, hi = travel[axis]
+            text += _AXIS.format(axis=axis, joint=joint, lo=lo, hi=hi, type="LINEAR" if axis in "XYZ" else "ANGULAR")
         ini = self.workdir / "sim.ini"
         ini.write_text(text)
         (self.workdir / "sim_mm.tbl").write_text("T1 P1 D0.0 Z0.0 ;\n")
@@ -208,14 +217,21 @@ class LinuxCncSim:
         (self.workdir / "simprobe.hal").write_text(
             f"loadusr -Wn simprobe {SYSTEM_PYTHON} {HERE / 'simprobe.py'} {self.workdir / 'simprobe_part.json'}\n"
             + "".join(f"net J{j}:pos-fb => simprobe.{a}\n" for j, a in enumerate("xyz"))
+            + ("net J3:pos-fb => simprobe.r\n" if len(self.coordinates) > 3 else "")
             + "net simprobe-trip simprobe.probe => motion.probe-input\n")
         return ini
 
-    def set_probe_part(self, boxes: list[dict], ball_radius_mm: float = 1.5) -> None:
+    def set_probe_part(self, boxes: list[dict], ball_radius_mm: float = 1.5,
+                       rotary_centre_xy: tuple[float, float] | None = None) -> None:
         """What the simulated probe touches: boxes turned about Z in machine coordinates (see
-        tests/machine/simprobe.py); an empty list clears it."""
+        tests/machine/simprobe.py); an empty list clears it. ``rotary_centre_xy``: the boxes sit on a C
+        table turning about the machine Z line through that point (XYZC sim): they are given at C = 0 and
+        the probe meets them turned by the C axis' position."""
         tmp = self.workdir / "simprobe_part.json.tmp"
-        tmp.write_text(json.dumps({"ball_radius_mm": ball_radius_mm, "boxes": boxes}))
+        part = {"ball_radius_mm": ball_radius_mm, "boxes": boxes}
+        if rotary_centre_xy is not None:
+            part["rotary"] = {"centre_xy": list(rotary_centre_xy)}
+        tmp.write_text(json.dumps(part))
         os.replace(tmp, self.workdir / "simprobe_part.json")  # the component never reads half a file
         time.sleep(0.05)
 
@@ -344,15 +360,19 @@ class LinuxCncSim:
 _SHARED: LinuxCncSim | None = None
 
 
-def shared_sim() -> LinuxCncSim:
+def shared_sim(coordinates: str = "XYZ") -> LinuxCncSim:
     """The one sim of this test process, started on first use (fresh temp config folder) and
     stopped when the process exits. Every test package that needs LinuxCNC should use this, so two
-    fixtures in one pytest run never try to start two instances (LinuxCNC allows one per computer)."""
+    fixtures in one pytest run never try to start two instances (LinuxCNC allows one per computer).
+    ``coordinates``: "XYZ" (the mill) or "XYZC" (a C rotary table, joint 3); asking for the other
+    kind stops the running sim and starts a fresh one."""
     global _SHARED
-    if _SHARED is None or _SHARED.proc is None or _SHARED.proc.poll() is not None:
+    if _SHARED is None or _SHARED.proc is None or _SHARED.proc.poll() is not None \
+            or _SHARED.coordinates != coordinates:
         if _SHARED is not None:
             _SHARED.stop()
-        sim = LinuxCncSim(Path(tempfile.mkdtemp(prefix="setupcam-lcnc-")))
+            shutil.rmtree(_SHARED.workdir, ignore_errors=True)
+        sim = LinuxCncSim(Path(tempfile.mkdtemp(prefix="setupcam-lcnc-")), coordinates=coordinates)
         sim.start()
         if _SHARED is None:
             atexit.register(_stop_shared)
@@ -370,5 +390,5 @@ if __name__ == "__main__":  # manual check: python tests/machine/linuxcnc_sim.py
     why = skip_reason()
     if why:
         sys.exit(why)
-    with LinuxCncSim(Path(tempfile.mkdtemp(prefix="lcnc-sim-"))) as sim:
+    with LinuxCncSim(Path(tempfile.mkdtemp(prefix="lcnc-sim-")), coordinates=(sys.argv[1:] or ["XYZ"])[0]) as sim:
         print(f"up in {sim.startup_s:.2f} s on port {sim.port}:", sim.status())

@@ -2,13 +2,19 @@
 
     loadusr -Wn simprobe /usr/bin/python3 simprobe.py PART.json   (-Wn: wait for the component by name)
     net J0:pos-fb => simprobe.x   (and y, z)       net simprobe-trip simprobe.probe => motion.probe-input
+    net J3:pos-fb => simprobe.r   (XYZC sim only: the C axis, degrees)
 
 It watches the machine position of the controlled point (the probe tip, the ball's lowest point)
 and sets ``probe`` while the ball (radius from the file) meets the true part: boxes turned about
 machine Z, in machine coordinates (mm). PART.json is re-read whenever it changes:
 
     {"ball_radius_mm": 1.5, "boxes": [{"centre_xy": [x, y], "half_xy": [hx, hy], "yaw_deg": c,
-                                       "z0": z0, "z1": z1}]}
+                                       "z0": z0, "z1": z1}],
+     "rotary": {"centre_xy": [cx, cy]}}        # optional: the boxes sit on a C table (see below)
+
+With ``rotary`` the boxes are given as they lie at C = 0 and turn with the table: at C = r degrees (pin
+``r``) they are turned by r about the machine Z line through ``centre_xy``, counter-clockwise seen from
++Z (the XYZC sim's table turns right-handed about +Z for positive C).
 
 A missing or empty file means nothing to touch (``probe`` stays false), so the sim runs every other
 test unchanged. Runs under the system Python that has LinuxCNC's ``hal`` module; standard library only.
@@ -27,9 +33,22 @@ def load(path):
     try:
         with open(path) as f:
             d = json.load(f)
-        return float(d.get("ball_radius_mm", 1.5)), list(d.get("boxes", []))
+        return float(d.get("ball_radius_mm", 1.5)), list(d.get("boxes", [])), d.get("rotary")
     except (OSError, ValueError):
-        return 1.5, []
+        return 1.5, [], None
+
+
+def turned(boxes, rotary, r_deg):
+    """The boxes with the table turned to ``r_deg`` about the rotary centre (unchanged without one)."""
+    if not rotary or not r_deg:
+        return boxes
+    cx, cy = rotary["centre_xy"]
+    c, s = math.cos(math.radians(r_deg)), math.sin(math.radians(r_deg))
+    out = []
+    for b in boxes:
+        dx, dy = b["centre_xy"][0] - cx, b["centre_xy"][1] - cy
+        out.append({**b, "centre_xy": [cx + c * dx - s * dy, cy + s * dx + c * dy], "yaw_deg": b["yaw_deg"] + r_deg})
+    return out
 
 
 def touches(x, y, z, r, boxes):
@@ -49,11 +68,11 @@ def touches(x, y, z, r, boxes):
 def main():
     path = sys.argv[1]
     h = hal.component("simprobe")
-    for axis in "xyz":
+    for axis in "xyzr":
         h.newpin(axis, hal.HAL_FLOAT, hal.HAL_IN)
     h.newpin("probe", hal.HAL_BIT, hal.HAL_OUT)
     h.ready()
-    stamp, r, boxes = None, 1.5, []
+    stamp, r, boxes, rotary = None, 1.5, [], None
     try:
         while True:
             try:
@@ -62,8 +81,8 @@ def main():
                 st = None
             if st != stamp:
                 stamp = st
-                r, boxes = load(path) if st is not None else (1.5, [])
-            h["probe"] = bool(boxes) and touches(h["x"], h["y"], h["z"], r, boxes)
+                r, boxes, rotary = load(path) if st is not None else (1.5, [], None)
+            h["probe"] = bool(boxes) and touches(h["x"], h["y"], h["z"], r, turned(boxes, rotary, h["r"]))
             time.sleep(0.0005)
     except KeyboardInterrupt:
         pass

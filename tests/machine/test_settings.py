@@ -67,3 +67,17 @@ def test_slots_and_offsets():
     assert not o.agrees_with(WorkOffset(1.000002, 2, 3, 180), 1e-6, 1e-6)
     with pytest.raises(ValueError, match="x_mm must be a finite number"):
         WorkOffset(float("nan"), 0, 0)
+
+
+def test_only_linuxcnc_reads_a_rotary_axis(tmp_path):
+    """A file drop and an OPC UA server say why they cannot tell the axis (the machine then takes the angle
+    from the operator); LinuxCNC refuses a name that is no rotary axis before connecting (reading it on an
+    XYZC sim: tests/e2e/test_rotary_table_sim.py)."""
+    from app.machine.base import PositionUnavailable
+
+    with pytest.raises(PositionUnavailable, match="C axis cannot be read here"):
+        make_controller({"kind": "file", "dialect": "linuxcnc", "folder": str(tmp_path)}).read_axis_deg("C")
+    with pytest.raises(PositionUnavailable, match="angle_from 'operator'"):
+        make_controller({"kind": "opcua", "endpoint": "opc.tcp://127.0.0.1:4840", "nodes": NODES}).read_axis_deg("C")
+    with pytest.raises(ValueError, match="A, B or C"):
+        make_controller({"kind": "linuxcnc", "host": "127.0.0.1", "port": 1}).read_axis_deg("X")

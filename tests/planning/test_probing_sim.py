@@ -51,3 +51,22 @@ def test_linuxcnc_interpreter_reads_both_variants(tmp_path):
         assert r.returncode == 0 and "error" not in out.lower(), out[-2000:]
         assert "PROGRAM_END()" in out
         assert out.count("STRAIGHT_PROBE(") == (0 if dry else 4)
+
+
+@pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's rs274 interpreter is not installed (linuxcnc-uspace)")
+def test_the_rotary_guard_aborts_unless_the_axis_stands_at_the_planned_angle(tmp_path):
+    """rs274 alone starts with every axis at 0: a program planned for C = 0 runs, one for C = 37 aborts
+    before its first move (the sim proves both on a turned table: tests/e2e/test_rotary_table_sim.py)."""
+    from app.planning.probing import rotary_guard_lines
+
+    for angle, runs in ((0.0, True), (37.0, False)):
+        f = tmp_path / f"guard_{angle:g}.ngc"
+        f.write_text("\n".join(["%", "G21 G90 G54", *rotary_guard_lines("C", angle, "G54"), "G0 Z10", "M2", "%"]) + "\n")
+        isolate = ["unshare", "--ipc"] if os.geteuid() == 0 else ["unshare", "--map-root-user", "--ipc"]
+        r = subprocess.run([*isolate, "rs274", "-g", str(f)], capture_output=True, text=True, timeout=60, cwd=tmp_path,
+                           check=False)
+        out = r.stdout + r.stderr
+        moved = "STRAIGHT_TRAVERSE(" in out
+        assert moved == runs, out[-2000:]
+        if not runs:
+            assert "not at 37.000 deg" in out, out[-2000:]

@@ -5,14 +5,15 @@ from __future__ import annotations
 
 import pytest
 import sqlalchemy as sa
-from alembic import command
 from sqlmodel import Session
 
+from alembic import command
 from app.config import Settings
 from app.services.errors import Invalid
 from app.services.machines import get_machine, machine_limit, validate_limit
 from app.store.db import alembic_config, make_engine, migrate
 from app.store.models import Machine
+from tests.support.factories import old_machine_row
 from tests.support.live_server import throwaway_database
 
 LIMITS = ("max_tilt_deg", "max_offset_change_mm", "max_offset_change_deg")
@@ -26,13 +27,7 @@ def test_migration_0008_adds_the_limits_as_null_and_keeps_the_machines(tmp_path,
         cfg = alembic_config(url)
         command.upgrade(cfg, "0007")
         engine = make_engine(url)
-        with engine.begin() as conn:
-            conn.execute(sa.text("INSERT INTO library_model (id, kind, name, description, current_revision, created_at) "
-                                 "VALUES (1, 'table', 'old table', '', 1, CURRENT_TIMESTAMP)"))
-            conn.execute(sa.text(
-                "INSERT INTO machine (id, name, table_model_id, table_revision, \"T_machine_table\", travel_mm, "
-                "camera_ids, created_at) VALUES (1, 'Mill 1', 1, 1, "
-                "'[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]', '{\"x\": [0, 1]}', '[]', CURRENT_TIMESTAMP)"))
+        old_machine_row(engine)
         migrate(engine)
         assert set(LIMITS) <= {c["name"] for c in sa.inspect(engine).get_columns("machine")}
         settings = Settings(SETUPCAM_DATA_DIR=str(tmp_path), SETUPCAM_MAX_TILT_DEG=0.3)

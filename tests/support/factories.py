@@ -10,6 +10,7 @@ import json
 
 import cv2
 import numpy as np
+import sqlalchemy as sa
 import trimesh
 
 from app.geometry.transforms import pose_from_xyz_euler
@@ -64,3 +65,15 @@ def located_setup(server, machine_id: int, T_table_obj: np.ndarray, *, sigma_mm:
         session.add(s)
         session.flush()
         return s.id
+
+
+def old_machine_row(engine, T_machine_table: str = "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]") -> None:
+    """Machine 1 ('Mill 1') on table model 1, inserted by plain SQL into a database migrated only to an older
+    revision (the columns every revision has), to check what a migration does to an existing machine."""
+    with engine.begin() as conn:
+        conn.execute(sa.text("INSERT INTO library_model (id, kind, name, description, current_revision, created_at) "
+                             "VALUES (1, 'table', 'old table', '', 1, CURRENT_TIMESTAMP)"))
+        conn.execute(sa.text(
+            "INSERT INTO machine (id, name, table_model_id, table_revision, \"T_machine_table\", travel_mm, "
+            f"camera_ids, created_at) VALUES (1, 'Mill 1', 1, 1, '{T_machine_table}', '{{\"x\": [0, 1]}}', '[]', "
+            "CURRENT_TIMESTAMP)"))

@@ -192,3 +192,41 @@ def test_paths_are_drawn_in_metres_and_replaced_on_a_new_version():
     old = scene.nodes["/paths/travel0"]
     update_paths(h, dataclasses.replace(v, paths=()))
     assert old.removed and h.paths == []
+
+
+def test_a_rotary_table_is_shown_turned_as_at_the_picture_and_moves_come_back_in_the_table_frame():
+    """World = the table at the export angle; the table, its objects, the camera and the paths are placed
+    through T_world_table (here: turned 37° about an axis through table (400, 200)); the axis is a line."""
+    from app.geometry.rotary_chain import RotaryChain
+
+    base = view(np.random.default_rng(0))
+    chain = RotaryChain("C", pose_from_xyz_euler(40, 30, -200), pose_from_xyz_euler(-400, -200, 0))
+    W = chain.turn(0.0, 37.0)
+    axis = np.array([[400.0, 200.0, -500.0], [400.0, 200.0, 500.0]])
+    v = SetupView(base.title, base.revision, base.table_mesh, base.objects, base.camera, base.editable,
+                  paths=(ViewPath("travel0", np.array([[0.0, 0, 50], [100, 0, 50]])),), T_world_table=W, axis_mm=axis)
+    scene = FakeScene()
+    moves = []
+    build_setup_scene(scene, v, on_move=lambda i, T: moves.append((i, T)))
+    assert "/rotary_axis" in scene.nodes
+    assert np.asarray(scene.nodes["/rotary_axis"].kw["points"]) == pytest.approx(axis.reshape(1, 2, 3) * M_PER_MM)
+    # the table mesh turned about the axis: the table's centre stays, its corner moves
+    t = scene.nodes["/table"]
+    assert viser_to_pose(t.kw["wxyz"], t.kw["position"]) == pytest.approx(W, abs=1e-6)
+    assert (W @ [400, 200, 0, 1])[:2] == pytest.approx([400, 200])
+    obj = scene.nodes["/objects/o1"]
+    assert viser_to_pose(obj.wxyz, obj.position) == pytest.approx(W @ v.objects[1].T_table_obj, abs=1e-6)
+    fr = scene.nodes["/camera"].kw
+    assert fr["position"] == pytest.approx((W @ inv(v.camera.T_cam_table))[:3, 3] * M_PER_MM)
+    assert np.asarray(scene.nodes["/paths/travel0"].kw["points"])[0, 0] == pytest.approx(
+        (W @ [0, 0, 50, 1])[:3] * M_PER_MM)
+    # a release of the gizmo at a pose in the world is a pose on the table
+    T_world = W @ pose_from_xyz_euler(310.0, 150.0, 15.0, c_deg=30.0)
+    wxyz, pos = pose_to_viser(T_world)
+
+    class Ev:
+        phase = "end"
+        target = type("T", (), {"wxyz": wxyz, "position": pos})()
+
+    obj.callbacks[0](Ev())
+    assert moves[0][1] == pytest.approx(pose_from_xyz_euler(310.0, 150.0, 15.0, c_deg=30.0), abs=1e-6)

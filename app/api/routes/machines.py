@@ -9,6 +9,7 @@ from fastapi import APIRouter, Depends, Response, status
 from pydantic import BaseModel, Field
 
 from app.api.deps import AdminPrincipal, SessionDep, SettingsDep, get_principal
+from app.machine.settings import RotaryAxisSettings
 from app.services import machines as svc
 from app.services.audit import audit
 
@@ -35,6 +36,9 @@ def _limit(name: str, what: str) -> Any:
 TILT_DOC = "Residual tilt (°) a 3-axis work offset may ignore on this machine; above it export is refused"
 CHANGE_MM_DOC = "X/Y/Z change (mm) against the controller's current slot that needs no acknowledgement"
 CHANGE_DEG_DOC = "C change (°) against the controller's current slot that needs no acknowledgement"
+ROTARY_DOC = ("The rotary axis carrying the table (C about Z, A/B trunnion): T_machine_table(angle) = "
+              "T_machine_axis @ R(angle) @ T_axis_table; with one, T_machine_table is that chain at export_at_deg. "
+              "null: the table does not turn")
 
 
 class MachineCreate(BaseModel):
@@ -42,13 +46,15 @@ class MachineCreate(BaseModel):
     table_model_id: int = Field(description="A library model of kind table with a fiducial layout")
     table_revision: int | None = Field(default=None, description="Default: the model's current revision")
     T_machine_table: list[list[float]] = Field(default_factory=lambda: IDENTITY,
-                                               description="Pose of the table frame in machine coordinates, mm")
+                                               description="Pose of the table frame in machine coordinates, mm "
+                                                           "(with a rotary axis: derived from it, may be left out)")
     travel_mm: Travel
     camera_ids: list[int] = Field(default_factory=list)
     controller: dict[str, Any] | None = Field(default=None, description=CONTROLLER_DOC)
     max_tilt_deg: float | None = _limit("max_tilt_deg", TILT_DOC)
     max_offset_change_mm: float | None = _limit("max_offset_change_mm", CHANGE_MM_DOC)
     max_offset_change_deg: float | None = _limit("max_offset_change_deg", CHANGE_DEG_DOC)
+    rotary_axis: RotaryAxisSettings | None = Field(default=None, description=ROTARY_DOC)
 
 
 class MachineUpdate(BaseModel):
@@ -62,6 +68,7 @@ class MachineUpdate(BaseModel):
     max_tilt_deg: float | None = _limit("max_tilt_deg", TILT_DOC)
     max_offset_change_mm: float | None = _limit("max_offset_change_mm", CHANGE_MM_DOC)
     max_offset_change_deg: float | None = _limit("max_offset_change_deg", CHANGE_DEG_DOC)
+    rotary_axis: RotaryAxisSettings | None = Field(default=None, description=ROTARY_DOC)
 
 
 class MachinePublic(BaseModel):
@@ -76,6 +83,7 @@ class MachinePublic(BaseModel):
     max_tilt_deg: float | None = Field(description=f"{TILT_DOC}; null: the global setting")
     max_offset_change_mm: float | None = Field(description=f"{CHANGE_MM_DOC}; null: the global setting")
     max_offset_change_deg: float | None = Field(description=f"{CHANGE_DEG_DOC}; null: the global setting")
+    rotary_axis: RotaryAxisSettings | None = Field(default=None, description=ROTARY_DOC)
     created_at: datetime
 
 
@@ -94,7 +102,10 @@ def _public(m) -> MachinePublic:
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=MachinePublic, summary="Register a machine")
 def create_machine(session: SessionDep, admin: AdminPrincipal, body: MachineCreate) -> MachinePublic:
-    m = svc.create_machine(session, **body.model_dump())
+    fields = body.model_dump()
+    if "T_machine_table" not in body.model_fields_set:
+        fields["T_machine_table"] = None  # the identity, or the rotary axis' chain at its export angle
+    m = svc.create_machine(session, **fields)
     audit(session, admin.label(), "machine.create", machine_id=m.id, name=m.name)
     return _public(m)
 
@@ -122,7 +133,7 @@ def update_machine(session: SessionDep, admin: AdminPrincipal, machine_id: int, 
     m = svc.update_machine(session, machine_id, changes)
     audit(session, admin.label(), "machine.update", machine_id=m.id, changed=sorted(changes),
           travel_mm=m.travel_mm, T_machine_table=m.T_machine_table,
-          limits={name: getattr(m, name) for name in svc.LIMIT_BOUNDS})
+          limits={name: getattr(m, name) for name in svc.LIMIT_BOUNDS}, rotary_axis=m.rotary_axis)
     return _public(m)
 
 
@@ -156,6 +167,20 @@ class PositionPublic(BaseModel):
                        502: {"description": "controller unreachable"}})
 def read_position(session: SessionDep, machine_id: int) -> PositionPublic:
     return PositionPublic(**svc.read_position(session, machine_id).as_dict())
+
+
+class AxisPublic(BaseModel):
+    name: str = Field(description="the rotary axis: A, B or C")
+    angle_deg: float = Field(description="its position now, machine coordinates, degrees")
+
+
+@router.get("/{machine_id}/rotary-axis", response_model=AxisPublic,
+            summary="Where the machine's rotary table axis is now (read live from the controller)",
+            responses={409: {"description": "no rotary axis, or the controller cannot report it"},
+                       502: {"description": "controller unreachable"}})
+def read_rotary_axis(session: SessionDep, machine_id: int) -> AxisPublic:
+    name, angle = svc.read_table_angle(session, machine_id)
+    return AxisPublic(name=name, angle_deg=angle)
 
 
 #: a machine position beyond this is a typing error (no machine tool's axis is 100 m long)

@@ -46,6 +46,10 @@ class SetupPublic(BaseModel):
     result: dict | None = Field(description="table (T_cam_table, markers used/rejected, rms_px) and objects "
                                             "(T_cam_obj, T_table_obj, score, uncertainty, ...), mm and degrees")
     result_revision: int
+    table_angle_deg: float | None = Field(default=None, description="a machine with a rotary table: the axis "
+                                         "angle when the picture was taken, degrees (the offset is for the "
+                                         "machine's export angle, result.offset.at_axis_deg)")
+    table_angle_from: str | None = Field(default=None, description="where that angle came from: controller | operator")
     confirmed_revision: int | None
     confirmed_by: str | None
     confirmed_at: datetime | None
@@ -83,11 +87,15 @@ async def create_setup(
                                           examples=["3,5"])] = None,
     grab: Annotated[bool, Form(description="Grab the image from the camera's source")] = False,
     image: Annotated[UploadFile | None, File(description="JPEG/PNG of table and workpiece")] = None,
+    table_angle_deg: Annotated[float | None, Form(
+        description="A machine with a rotary table whose angle the operator types: the axis angle (degrees, as "
+                    "the controller shows it) at which the picture was taken; leave it out otherwise")] = None,
 ) -> SetupAccepted:
     data = await read_image_upload(image, settings, "image") if image is not None and image.filename else None
     # checks, storing the image and a camera grab (I/O) off the event loop; the localisation is the job's
     setup = await run_in_threadpool(svc.create_setup, session, files, machine_id=machine_id, camera_id=camera_id,
-                                    model_ids=_parse_ids(model_ids), image=data, grab=grab, created_by=who.label())
+                                    model_ids=_parse_ids(model_ids), image=data, grab=grab, created_by=who.label(),
+                                    table_angle_deg=table_angle_deg)
     job = enqueue(request, session, "localize", {"setup_id": setup.id}, who.label())
     return SetupAccepted(id=setup.id, status=setup.status, url=f"/api/v1/setups/{setup.id}",
                          events_url=f"/api/v1/setups/{setup.id}/events", job_id=job.job_id, job_url=job.job_url)
