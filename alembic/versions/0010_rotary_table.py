@@ -23,8 +23,8 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    with op.batch_alter_table('setup', schema=None) as batch_op:
-        batch_op.drop_column('table_angle_from')
-        batch_op.drop_column('table_angle_deg')
-    with op.batch_alter_table('machine', schema=None) as batch_op:
-        batch_op.drop_column('rotary_axis')
+    # plain ALTER TABLE ... DROP COLUMN (SQLite >= 3.35): a batch copy would drop and re-create the
+    # machine table, which the foreign keys of existing setups and monitors forbid
+    op.drop_column('setup', 'table_angle_from')
+    op.drop_column('setup', 'table_angle_deg')
+    op.drop_column('machine', 'rotary_axis')
