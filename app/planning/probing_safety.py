@@ -366,6 +366,8 @@ def plan_probing_program(
     method: str = "profile",
     unknown_note: str = "",
     speeds=None,
+    dialect: str = "linuxcnc",
+    detour: str = "straight",
 ):
     """A probing program planned only around what is known, or :class:`ProbingRefused`.
 
@@ -375,6 +377,9 @@ def plan_probing_program(
     T_prog_table : the program frame (the slot's frame); slot : its name (G54..G59.3).
     Refusal codes: no_touch_points, obstacle_not_located (an assumed obstacle is where a touch goes),
     touch_blocked (a located obstacle is), retract_above_travel, not_plannable, outside_travel.
+    detour : "straight" (every move written out, ``method`` planner, LinuxCNC) or "subroutine" (the travel
+    as calls of the detour subroutine in ``dialect``, reference method around the obstacles' bounding
+    boxes in the program frame: app/planning/detour_program.py).
     Returns app.planning.probing.ProbingProgram; its G-code starts with :func:`header_lines`.
     """
     from app.planning.obstacles import height_grid_from_meshes
@@ -443,17 +448,32 @@ def plan_probing_program(
     travel = ProbeParams(working_distance_mm=0.0, clearance_mm=clearance_mm, radius_mm=params.body_radius_mm,
                          length_mm=params.stylus_length_mm + params.body_length_mm)
     header = header_lines(frame_text, [*located, *assumed], unknown_note)
+    centre = np.asarray(poses[workpiece_index], dtype=float)[:3, 3]
+    T_table_prog = np.linalg.inv(np.asarray(T_prog_table, dtype=float))
     try:
-        grid = raise_grid(height_grid_from_meshes(meshes, poses, uncertainty_mm=grow), assumed)
-        centre = np.asarray(poses[workpiece_index], dtype=float)[:3, 3]
-        program = probing_gcode(touches, grid, travel, (centre[0], centre[1], retract), params=params, speeds=speeds,
-                                dry_run=dry_run, wcs=slot, T_prog_table=T_prog_table, header=header,
-                                retract_z_mm=retract, title=title, method=method)
+        if detour == "subroutine":
+            from app.planning.detour_program import detour_probing_program
+
+            program = detour_probing_program(dialect, touches, [*located, *assumed], travel,
+                                             (centre[0], centre[1], retract), params=params, dry_run=dry_run, wcs=slot,
+                                             T_prog_table=T_prog_table, header=header, retract_z_mm=retract,
+                                             title=title)
+        elif detour == "straight":
+            grid = raise_grid(height_grid_from_meshes(meshes, poses, uncertainty_mm=grow), assumed)
+            program = probing_gcode(touches, grid, travel, (centre[0], centre[1], retract), params=params,
+                                    speeds=speeds, dry_run=dry_run, wcs=slot, T_prog_table=T_prog_table,
+                                    header=header, retract_z_mm=retract, title=title, method=method)
+        else:
+            raise ValueError(f"unknown detour {detour!r}; use 'straight' or 'subroutine'")
     except ValueError as exc:
         raise ProbingRefused("not_plannable", str(exc)) from None
-    T_table_prog = np.linalg.inv(np.asarray(T_prog_table, dtype=float))
-    pts = np.array([q for _, q in gcode_positions(program.gcode) if not np.isnan(q).any()])
-    bad = outside_travel(transform_points(T_table_prog, pts), T_machine_table, travel_mm)
+    if detour == "subroutine":  # the planner's path is what the controller will do (tests/planning/test_detour*)
+        table_pts = np.array([w for p in program.travel for w in p.waypoints]
+                             + [t.probe_end_tip for t in touches] + [(centre[0], centre[1], retract)])
+    else:
+        pts = np.array([q for _, q in gcode_positions(program.gcode) if not np.isnan(q).any()])
+        table_pts = transform_points(T_table_prog, pts)
+    bad = outside_travel(table_pts, T_machine_table, travel_mm)
     if bad:
         k, q = bad[0]
         raise ProbingRefused("outside_travel", f"{len(bad)} moves end outside the machine's travel, first at machine "
