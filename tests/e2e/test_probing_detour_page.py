@@ -8,7 +8,7 @@ import pytest
 
 from app.synth.scene import place_on_table
 from tests.api.test_probing_gates import _confirmed
-from tests.e2e.test_setup_page import browser, page, service  # noqa: F401
+from tests.e2e.test_setup_page import browser, page, scene, service  # noqa: F401
 from tests.support.browser import ARTIFACTS
 from tests.support.factories import make_machine
 from tests.support.scenes import library_mesh
