@@ -87,7 +87,7 @@ def _clean(text: str) -> str:
     """Comment text that cannot end a comment early in any dialect."""
     import re
 
-    return re.sub(r"[^A-Za-z0-9 .,:_/+=#<>*-]", " ", str(text)).strip()[:70]
+    return re.sub(r"[^A-Za-z0-9 .,:_/+=#<>*-]", " ", str(text)).strip()[:120]
 
 
 def comment(dialect: str, text: str) -> str:

@@ -142,8 +142,9 @@ def detour_probing_program(
     z_retract = prog((start[0], start[1], retract))[2]
     main = [comment(d, ln.strip()[1:-1] if ln.startswith("(") else ln) for ln in header]
     main += [comment(d, f"{title}{' - DRY RUN: probe moves as feed moves to the nominal contact' if dry_run else ''}"),
-             comment(d, f"travel: one call of the detour subroutine {len(sub.boxes.boxes)} boxes per move"),
-             comment(d, "units mm; positions are the probe tip, probe tool and length offset active"),
+             comment(d, f"travel: one call per move of the detour subroutine, {len(sub.boxes.boxes)} obstacle boxes "
+                        f"baked in, margin {opt.box_margin_mm:g} mm, clearance {probe.clearance_mm:g} mm"),
+             comment(d, "units mm, positions are the probe tip, probe tool and length offset active"),
              *_modal(d, slot), emit_rapid(d, (0.0, 0.0, z_retract), "Z"), emit_rapid(d, p0, "XY"),
              emit_feed(d, p0, 5000.0, "Z")]
     if d == "linuxcnc" and not dry_run:
