@@ -192,3 +192,34 @@ def test_linuxcnc_runs_the_detour_subroutine_on_the_planned_path(sim, options):
     boxes = program_boxes(obstacles, np.eye(4)).boxes
     bad = inside_grown_boxes(S[~touch_legs], boxes, CLEARANCE)
     assert not bad.any(), (S[~touch_legs][bad][:5], np.unique(seg[~touch_legs][bad]), W)
+
+
+def test_real_touches_through_the_subroutine_trip_on_the_true_part(sim):
+    """The real program (G38.2, PROBEOPEN log) on the sim with a simulated probe: the block stands
+    0.4 mm further in +x and 0.3 mm in -y than located. No rapid of the detours trips the probe (LinuxCNC
+    would stop the program), and each touch logs where the ball meets the true face."""
+    from app.planning.probing import parse_probe_results
+
+    touches, obstacles = scene()
+    prog = detour_probing_program("linuxcnc", touches, obstacles, TRAVEL, START, params=PARAMS, dry_run=False,
+                                  retract_z_mm=START[2], title="detour sim real")
+    shift = np.array([0.4, -0.3, 0.0])
+    sim.mdi("G10 L2 P1 X0 Y0 Z0 R0")
+    sim.mdi("G54")
+    sim.mdi(f"G0 X{START[0]} Y{START[1]} Z{START[2]}")
+    sim.set_probe_part([{"centre_xy": [200.0 + shift[0], 130.0 + shift[1]], "half_xy": [50.0, 30.0], "yaw_deg": 0.0,
+                         "z0": 0.0, "z1": 30.0}], PARAMS.ball_radius_mm)
+    log = sim.workdir / "setupcam_probe.txt"
+    log.unlink(missing_ok=True)
+    try:
+        out = sim.trace_program(prog.gcode, name="detour_real.ngc")
+    finally:
+        sim.set_probe_part([])
+    assert out["error"] is None and out["done"], out.get("error")
+    tips = parse_probe_results(log.read_text())
+    assert len(tips) == 4, log.read_text()
+    want = [np.asarray(t.contact_tip) + float(shift @ np.asarray(t.normal)) * np.asarray(t.normal) for t in touches]
+    err = np.linalg.norm(tips - np.asarray(want), axis=1)
+    print(f"\nreal touches through the subroutine: errors {np.round(err * 1000, 1).tolist()} um")
+    assert np.all(err <= 0.05), err
+    assert np.linalg.norm(np.asarray(out["samples"][-1]) - np.asarray(START)) < 1e-3  # back at the start
