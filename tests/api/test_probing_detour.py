@@ -93,6 +93,20 @@ def test_bad_detour_choices_are_refused_with_the_reason(server, confirmed, param
             assert r.json()["code"] == code and words in r.json()["detail"], r.json()
 
 
+@pytest.mark.parametrize("dialect", DETOUR_DIALECTS)
+def test_no_parameter_carries_code_into_a_subroutine_program(server, confirmed, dialect):
+    """Every parameter of a subroutine program is checked against its closed set, in every dialect."""
+    from tests.api.test_probing_gates import PAYLOADS
+
+    with server.client("operator") as c:
+        for param in ("wcs", "clearance_mm", "no_go", "detour"):
+            for payload in PAYLOADS:
+                r = c.get(URL.format(sid=confirmed), params={"dialect": dialect, "detour": "subroutine", param: payload})
+                assert r.status_code == 422, (param, payload, r.text)
+                assert r.json()["code"] in ("invalid_parameter", "wcs_not_a_slot", "clearance_out_of_range",
+                                            "no_go_invalid", "unknown_detour"), (param, payload, r.json())
+
+
 def test_options_offer_the_subroutine(server, confirmed):
     with server.client("operator") as c:
         opts = c.get(f"/api/v1/setups/{confirmed}/probing-options").json()
