@@ -367,6 +367,8 @@ def plan_probing_program(
     unknown_note: str = "",
     speeds=None,
     axis_at: tuple[str, float] | None = None,
+    dialect: str = "linuxcnc",
+    detour: str = "straight",
 ):
     """A probing program planned only around what is known, or :class:`ProbingRefused`.
 
@@ -378,6 +380,9 @@ def plan_probing_program(
     touch_blocked (a located obstacle is), retract_above_travel, not_plannable, outside_travel.
     axis_at : a rotary table's (axis, degrees) that T_machine_table is for: the program aborts unless
     the axis stands there (app.planning.probing.rotary_guard_lines).
+    detour : "straight" (every move written out, ``method`` planner, LinuxCNC) or "subroutine" (the travel
+    as calls of the detour subroutine in ``dialect``, reference method around the obstacles' bounding
+    boxes in the program frame: app/planning/detour_program.py).
     Returns app.planning.probing.ProbingProgram; its G-code starts with :func:`header_lines`.
     """
     from app.planning.obstacles import height_grid_from_meshes
@@ -446,17 +451,36 @@ def plan_probing_program(
     travel = ProbeParams(working_distance_mm=0.0, clearance_mm=clearance_mm, radius_mm=params.body_radius_mm,
                          length_mm=params.stylus_length_mm + params.body_length_mm)
     header = header_lines(frame_text, [*located, *assumed], unknown_note)
+    centre = np.asarray(poses[workpiece_index], dtype=float)[:3, 3]
+    T_table_prog = np.linalg.inv(np.asarray(T_prog_table, dtype=float))
     try:
-        grid = raise_grid(height_grid_from_meshes(meshes, poses, uncertainty_mm=grow), assumed)
-        centre = np.asarray(poses[workpiece_index], dtype=float)[:3, 3]
-        program = probing_gcode(touches, grid, travel, (centre[0], centre[1], retract), params=params, speeds=speeds,
-                                dry_run=dry_run, wcs=slot, T_prog_table=T_prog_table, header=header,
-                                retract_z_mm=retract, title=title, method=method, axis_at=axis_at)
+        if detour == "subroutine":
+            from app.planning.detour_program import detour_probing_program
+
+            if axis_at is not None:
+                raise ProbingRefused("not_plannable", "the detour subroutine does not check a rotary table's "
+                                     "angle before it moves; on this machine use detour=straight (LinuxCNC), "
+                                     "whose program aborts unless the axis stands at the export angle")
+            program = detour_probing_program(dialect, touches, [*located, *assumed], travel,
+                                             (centre[0], centre[1], retract), params=params, dry_run=dry_run, wcs=slot,
+                                             T_prog_table=T_prog_table, header=header, retract_z_mm=retract,
+                                             title=title)
+        elif detour == "straight":
+            grid = raise_grid(height_grid_from_meshes(meshes, poses, uncertainty_mm=grow), assumed)
+            program = probing_gcode(touches, grid, travel, (centre[0], centre[1], retract), params=params,
+                                    speeds=speeds, dry_run=dry_run, wcs=slot, T_prog_table=T_prog_table,
+                                    header=header, retract_z_mm=retract, title=title, method=method, axis_at=axis_at)
+        else:
+            raise ValueError(f"unknown detour {detour!r}; use 'straight' or 'subroutine'")
     except ValueError as exc:
         raise ProbingRefused("not_plannable", str(exc)) from None
-    T_table_prog = np.linalg.inv(np.asarray(T_prog_table, dtype=float))
-    pts = np.array([q for _, q in gcode_positions(program.gcode) if not np.isnan(q).any()])
-    bad = outside_travel(transform_points(T_table_prog, pts), T_machine_table, travel_mm)
+    if detour == "subroutine":  # the planner's path is what the controller will do (tests/planning/test_detour*)
+        table_pts = np.array([w for p in program.travel for w in p.waypoints]
+                             + [t.probe_end_tip for t in touches] + [(centre[0], centre[1], retract)])
+    else:
+        pts = np.array([q for _, q in gcode_positions(program.gcode) if not np.isnan(q).any()])
+        table_pts = transform_points(T_table_prog, pts)
+    bad = outside_travel(table_pts, T_machine_table, travel_mm)
     if bad:
         k, q = bad[0]
         raise ProbingRefused("outside_travel", f"{len(bad)} moves end outside the machine's travel, first at machine "

@@ -17,6 +17,7 @@ from app.geometry.mesh import load_mesh
 from app.geometry.transforms import inv, transform_points
 from app.machine import ControllerError, SLOT_P_NUMBERS, WorkOffset, make_controller, parse_controller_settings
 from app.machine.nc_files import DIALECTS, SLOTS
+from app.planning.detour_emit import DETOUR_DIALECTS, SUFFIX
 from app.planning.probing import ProbingParams, choose_touch_points, parse_probe_results, refine_offset
 from app.planning.probing_safety import (ProbingRefused, assumed_in_zones, assumed_unlocated, drawn_zones,
                                          plan_probing_program, table_z_max_mm)
@@ -86,9 +87,14 @@ def plan(session: Session, files: FileStore, request: dict[str, Any]) -> dict:
 
 
 #: query parameters of the probing program: a closed set, each value checked below
-PROGRAM_PARAMS = ("dialect", "dry_run", "wcs", "clearance_mm", "no_go")
+PROGRAM_PARAMS = ("dialect", "dry_run", "wcs", "clearance_mm", "no_go", "detour")
 #: dialects the probing program is written in (the NC-file dialects of app.machine.nc_files otherwise)
 PROBE_DIALECTS = ("linuxcnc",)
+#: how the travel is written: "straight" every move written out (profile planner), "subroutine" one call
+#: per move of the detour subroutine the controller evaluates (reference method; app/planning/detour_*.py)
+DETOURS = ("straight", "subroutine")
+#: dialects of the detour subroutine
+SUBROUTINE_DIALECTS = DETOUR_DIALECTS
 CLEARANCE_RANGE_MM = (1.0, 20.0)
 
 
@@ -107,20 +113,35 @@ def controller_slots(controller: dict | None, dialect: str) -> tuple[str, ...]:
     return SLOTS["linuxcnc"]
 
 
-def check_program_params(machine, *, dialect: str, wcs: str, clearance_mm: float) -> tuple[str, str, float]:
-    """(dialect, slot, clearance) from the closed sets, or Invalid with a reason code: unknown_dialect,
-    dialect_not_supported, dialect_mismatch, wcs_not_a_slot, clearance_out_of_range."""
+def check_detour(detour: str) -> str:
+    """The detour form from its closed set, or Invalid (code unknown_detour) naming the ones there are."""
+    t = str(detour).lower()
+    if t not in DETOURS:
+        raise Invalid(f"detour {str(detour)[:40]!r} is unknown; use one of {', '.join(DETOURS)} (straight: every "
+                      "move written out; subroutine: the controller evaluates the detour per move)",
+                      code="unknown_detour")
+    return t
+
+
+def check_program_params(machine, *, dialect: str, wcs: str, clearance_mm: float,
+                         detour: str = "straight") -> tuple[str, str, float]:
+    """(dialect, slot, clearance) from the closed sets, or Invalid with a reason code: unknown_detour,
+    unknown_dialect, dialect_not_supported, dialect_mismatch, wcs_not_a_slot, clearance_out_of_range."""
+    t = check_detour(detour)
     d = str(dialect).lower()
     if d not in DIALECTS:
-        raise Invalid(f"dialect {dialect!r} is unknown; use one of {', '.join(DIALECTS)}", code="unknown_dialect")
-    if d not in PROBE_DIALECTS:
-        raise Invalid(f"probing programs are written for {', '.join(PROBE_DIALECTS)} only, not {d}",
+        raise Invalid(f"dialect {str(dialect)[:40]!r} is unknown; use one of {', '.join(DIALECTS)}",
+                      code="unknown_dialect")
+    allowed = SUBROUTINE_DIALECTS if t == "subroutine" else PROBE_DIALECTS
+    if d not in allowed:
+        raise Invalid(f"probing programs with detour={t} are written for {', '.join(allowed)} only, not {d}"
+                      + ("; detour=subroutine is written for every dialect" if t == "straight" else ""),
                       code="dialect_not_supported")
     ctrl = machine.controller or {}
     if ctrl.get("kind") == "file" and ctrl.get("dialect") != d:
         raise Invalid(f"machine {machine.id} reads {ctrl.get('dialect')} files; a {d} program would not run there",
                       code="dialect_mismatch")
-    slots = controller_slots(ctrl, d)
+    slots = tuple(x for x in controller_slots(ctrl, d) if x in SLOTS[d])
     slot = str(wcs).upper()
     if slot not in slots:
         raise Invalid(f"wcs {wcs!r} is not a work-offset slot of machine {machine.id}'s controller; use one of "
@@ -133,12 +154,18 @@ def check_program_params(machine, *, dialect: str, wcs: str, clearance_mm: float
     return d, slot, c
 
 
+def program_suffix(dialect: str) -> str:
+    """File name suffix of a probing program in ``dialect`` (checked before: one of the closed set)."""
+    return SUFFIX.get(str(dialect).lower(), ".ngc")
+
+
 def probing_program(session: Session, files: FileStore, settings, setup_id: int, *, dry_run: bool,
                     wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0,
-                    no_go: str | None = None) -> str:
-    """LinuxCNC probing program for the confirmed workpiece of a setup (the datum frame in slot ``wcs``)."""
+                    no_go: str | None = None, detour: str = "straight") -> str:
+    """Probing program for the confirmed workpiece of a setup (the datum frame in slot ``wcs``), in
+    ``dialect``; ``detour="subroutine"``: the travel as calls of the detour subroutine."""
     return probing_plan(session, files, settings, setup_id, dry_run=dry_run, wcs=wcs, dialect=dialect,
-                        clearance_mm=clearance_mm, no_go=no_go).gcode
+                        clearance_mm=clearance_mm, no_go=no_go, detour=detour).gcode
 
 
 def _unlocated(session: Session, files: FileStore, s) -> list[tuple[str, float]]:
@@ -194,7 +221,7 @@ def _frame_of(session: Session, machine, s, slot: str, off: dict) -> str:
 
 def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *, dry_run: bool = True,
                  wcs: str = "G54", dialect: str = "linuxcnc", clearance_mm: float = 5.0, check_frame: bool = True,
-                 no_go: str | None = None):
+                 no_go: str | None = None, detour: str = "straight"):
     """The probing program with its touches and safe travel paths: ProbingProgram (travel in the
     table frame, G-code in the datum frame of slot ``wcs``).
 
@@ -208,7 +235,8 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
         settings = get_settings()
     s = get_setup(session, setup_id)
     machine = get_machine(session, s.machine_id)
-    _, slot, clearance = check_program_params(machine, dialect=dialect, wcs=wcs, clearance_mm=clearance_mm)
+    d, slot, clearance = check_program_params(machine, dialect=dialect, wcs=wcs, clearance_mm=clearance_mm,
+                                              detour=detour)
     zones = []
     if no_go is not None:
         try:
@@ -246,7 +274,8 @@ def probing_plan(session: Session, files: FileStore, settings, setup_id: int, *,
             unknown_note="" if s.models else "objects not asked for in the setup are not known to the planner",
             # a rotary table: the frame is the table at the export angle, so the program runs only there
             axis_at=(machine.rotary_axis["name"], float(machine.rotary_axis["export_at_deg"]))
-            if machine.rotary_axis else None)
+            if machine.rotary_axis else None,
+            dialect=d, detour=check_detour(detour))
     except ProbingRefused as exc:
         raise Invalid(f"probing program refused: {exc}", code=exc.code) from None
 

@@ -9,6 +9,8 @@ table frame (mm) unless a key says ``_prog`` (the program frame: the slot the pr
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 from shapely.geometry import MultiPoint
 from sqlmodel import Session, select
@@ -16,7 +18,11 @@ from sqlmodel import Session, select
 from app.geometry.transforms import transform_points
 from app.services.planning import (
     CLEARANCE_RANGE_MM,
+    DETOURS,
     PROBE_DIALECTS,
+    SUBROUTINE_DIALECTS,
+    check_detour,
+    program_suffix,
     table_xy,
     check_program_params,
     controller_slots,
@@ -64,27 +70,42 @@ def probing_options(session: Session, files: FileStore, setup_id: int) -> dict:
     return {"setup_id": s.id, "machine_id": machine.id, "machine": machine.name, "controller": kind,
             **_scene_outline(session, files, s, machine),
             "dialects": dialects, "slots": list(controller_slots(machine.controller, PROBE_DIALECTS[0])),
+            "detours": list(DETOURS), "subroutine_dialects": list(SUBROUTINE_DIALECTS),
             "exported_slot": exported.slot if exported else None,
             "reads_back": kind in ("linuxcnc", "opcua"),
             "clearance_mm": {"min": CLEARANCE_RANGE_MM[0], "max": CLEARANCE_RANGE_MM[1], "default": 5.0}}
 
 
+def _comment_lines(lines: list[str]) -> list[str]:
+    """The program's comment lines in any dialect (HEIDENHAIN block numbers dropped), for the page."""
+    out = []
+    for ln in lines:
+        s = re.sub(r"^\d+ ", "", ln) if re.match(r"^\d+ ;", ln) else ln
+        if s.startswith("(") or (s.startswith(";") and not s.startswith(";$")):
+            out.append(s)
+    return out
+
+
 def plan_summary(session: Session, files: FileStore, settings, setup_id: int, *, wcs: str, dialect: str,
-                 clearance_mm: float, no_go: str | None) -> dict:
+                 clearance_mm: float, no_go: str | None, detour: str = "straight") -> dict:
     """The program the probing page offers, as data: refusals are raised as by the program endpoint."""
 
     prog = probing_plan(session, files, settings, setup_id, dry_run=False, wcs=wcs, dialect=dialect,
-                        clearance_mm=clearance_mm, no_go=no_go)
+                        clearance_mm=clearance_mm, no_go=no_go, detour=detour)
     s = get_setup(session, setup_id)
     machine = get_machine(session, s.machine_id)
-    d, slot, clearance = check_program_params(machine, dialect=dialect, wcs=wcs, clearance_mm=clearance_mm)
+    d, slot, clearance = check_program_params(machine, dialect=dialect, wcs=wcs, clearance_mm=clearance_mm,
+                                              detour=detour)
+    t = check_detour(detour)
     T_prog_table = program_frame(machine, s.result["offset"])
     lines = prog.gcode.splitlines()
-    params = {"dialect": d, "wcs": slot, "clearance_mm": f"{clearance:g}", **({"no_go": no_go} if no_go else {})}
+    params = {"dialect": d, "wcs": slot, "clearance_mm": f"{clearance:g}", **({"no_go": no_go} if no_go else {}),
+              **({"detour": t} if t != "straight" else {})}
     return {
         "setup_id": s.id, "result_revision": s.result_revision, "dialect": d, "slot": slot, "clearance_mm": clearance,
+        "detour": t, "file_suffix": program_suffix(d),
         "frame": prog.frame,
-        "header": [ln for ln in lines[1:] if ln.startswith("(")][:40],
+        "header": _comment_lines(lines[1:])[:40],
         "obstacles": [{"name": o.name, "source": o.source, "top_mm": round(float(o.top_mm), 3),
                        "footprint_xy_mm": _round(o.footprint_xy_mm, 2), "note": o.note} for o in prog.obstacles],
         "touches": [{"name": t.name, "normal": _round(t.normal, 5), "contact_mm": _round(t.contact),

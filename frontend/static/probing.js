@@ -34,7 +34,7 @@ async function loadSetup(id) {
   const o = state.options;
   const slot = qs("wcs") || o.exported_slot || $("slot").value || o.slots[0];
   $("slot").replaceChildren(...o.slots.map((s) => el("option", { value: s, text: s, selected: s === slot })));
-  $("dialect").replaceChildren(...o.dialects.map((d) => el("option", { value: d, text: d })));
+  fillDialects();
   const c = $("clearance");
   c.min = o.clearance_mm.min;
   c.max = o.clearance_mm.max;
@@ -42,8 +42,19 @@ async function loadSetup(id) {
   await plan();
 }
 
+/** The dialects on offer for the chosen travel (the subroutine is written for more controllers). */
+function fillDialects() {
+  const o = state.options;
+  if (!o) return;
+  const sub = $("detour").value === "subroutine";
+  const list = sub ? (o.subroutine_dialects || o.dialects) : o.dialects;
+  const was = $("dialect").value || qs("dialect");
+  $("dialect").replaceChildren(...list.map((d) => el("option", { value: d, text: d, selected: d === was })));
+}
+
 function planParams() {
   const p = new URLSearchParams({ wcs: $("slot").value, dialect: $("dialect").value, clearance_mm: $("clearance").value });
+  if ($("detour").value !== "straight") p.set("detour", $("detour").value);
   const zones = $("no-go").value.trim();
   if (zones) p.set("no_go", zones);
   return p;
@@ -59,7 +70,8 @@ async function plan() {
     state.lastPlan = state.plan;
     const p = state.plan;
     setOffer(p);
-    status(`Ready: ${p.touches.length} touches, ${p.program_lines} lines, runs in ${p.slot}.`, "ok");
+    const how = p.detour === "subroutine" ? ", travel by the detour subroutine" : "";
+    status(`Ready: ${p.touches.length} touches, ${p.program_lines} lines${how}, runs in ${p.slot}.`, "ok");
   } catch (e) {
     state.plan = null;
     refuse(e);
@@ -122,7 +134,7 @@ async function download() {
   try {
     const resp = await api(p.program_url);
     const blob = await resp.blob();
-    const a = el("a", { href: URL.createObjectURL(blob), download: `setup${p.setup_id}-probe.ngc` });
+    const a = el("a", { href: URL.createObjectURL(blob), download: `setup${p.setup_id}-probe${p.file_suffix || ".ngc"}` });
     document.body.append(a);
     a.click();
     a.remove();
@@ -363,6 +375,7 @@ async function sendResults() {
 document.addEventListener("DOMContentLoaded", async () => {
   $("plan-button").addEventListener("click", plan);
   for (const id of ["slot", "dialect", "clearance"]) $(id).addEventListener("change", plan);
+  $("detour").addEventListener("change", () => { fillDialects(); plan(); });
   $("no-go").addEventListener("change", plan);
   $("no-go-clear").addEventListener("click", () => { $("no-go").value = ""; state.corner = null; plan(); });
   $("plan").addEventListener("click", tapPlan);

@@ -81,7 +81,7 @@ def test_probing_page_has_the_automation_ids(service):
     with service.client(None) as c:
         html = c.get("/probing").text
         assert c.get("/static/probing.js").status_code == 200 and c.get("/static/probing.css").status_code == 200
-    for tid in ("probing-setup-input", "slot-select", "dialect-select", "clearance-input", "plan-button", "plan-svg",
+    for tid in ("probing-setup-input", "slot-select", "detour-select", "dialect-select", "clearance-input", "plan-button", "plan-svg",
                 "frame-text", "refusal", "download-button", "no-go-input", "results-input", "results-upload",
                 "results-button", "probe-verdict", "residual-table", "pose-before-after", "residual-chart"):
         assert f'data-testid="{tid}"' in html, tid

@@ -26,7 +26,7 @@ LINE = re.compile(r"^(%|\([^()\n]*\)|G21 G90 G17 G94 G40 G5[4-9](\.[1-3])?|M2"
 PAYLOADS = ["G54\nG0 Z-500", "G54\rG0 Z-500", "M3 S20000", "foo", "G54 (x)", "G54)\nM3 (", "G54;M3", "G54 ",
             "", "G10 L2 P1 X0", "%", "nan", "inf", "-inf", "1e309", "-5", "1000", "5\nM3", "true\nM3",
             "linuxcnc\nG0 Z-500", "G54\u2028G0 Z-500", "G54\x00M3", "%0AG0 Z-500"]
-PARAMS = ("wcs", "dialect", "dry_run", "clearance_mm", "no_go")
+PARAMS = ("wcs", "dialect", "dry_run", "clearance_mm", "no_go", "detour")
 
 
 def _bracket(c):
@@ -89,10 +89,10 @@ def test_injection_through_every_parameter_and_dialect(server, good_setup, param
         assert r.status_code == 422, (params, r.status_code, r.text)
         body = r.json()
         assert body.get("code") in ("invalid_parameter", "unknown_dialect", "dialect_not_supported", "wcs_not_a_slot",
-                                    "clearance_out_of_range", "no_go_invalid"), (params, body)
+                                    "clearance_out_of_range", "no_go_invalid", "unknown_detour"), (params, body)
         if param != "dialect" and dialect != "linuxcnc":
             assert body["code"] in ("dialect_not_supported", "invalid_parameter", "clearance_out_of_range",
-                                    "wcs_not_a_slot", "no_go_invalid"), body
+                                    "wcs_not_a_slot", "no_go_invalid", "unknown_detour"), body
 
 
 def test_unknown_and_repeated_parameters_are_refused(server, good_setup):

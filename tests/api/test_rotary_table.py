@@ -182,3 +182,20 @@ def test_an_offset_for_an_old_export_angle_is_not_exported(server, client, parts
     with server.client("operator") as op:  # back at the angle it was computed for: written
         r = op.post(f"/api/v1/setups/{sid}/export", json={"slot": "G54", "acknowledge_change": True})
     assert r.status_code == 200 and r.json()["status"] == "written", r.text
+
+
+def test_the_detour_subroutine_is_refused_on_a_rotary_table(server, client, parts):
+    """The subroutine form does not check the table's angle before it moves: refused with the reason,
+    while the written-out program (which aborts unless the axis stands at the export angle) is served."""
+    base, _ = parts
+    from tests.api.test_probing_gates import _confirmed
+    from app.synth.scene import place_on_table
+    from tests.support.scenes import library_mesh
+
+    m = client.post("/api/v1/machines", json={"name": "Rotary detour", **base, "rotary_axis": _rotary()}).json()
+    sid = _confirmed(server, m["id"], place_on_table(library_mesh("bracket_140"), 300.0, 150.0, 10.0))
+    with server.client("operator") as op:
+        r = op.get(f"/api/v1/setups/{sid}/probing-program", params={"detour": "subroutine"})
+        assert r.status_code == 422 and "rotary table" in r.json()["detail"], r.text
+        r = op.get(f"/api/v1/setups/{sid}/probing-program")
+        assert r.status_code == 200 and "#<setupcam_axis> = [#5425" in r.text, r.text

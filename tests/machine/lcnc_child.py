@@ -5,7 +5,7 @@ import the module in their own process: a process that polls status before the c
 stays broken (see /work/shared/notes/linuxcnc-opcua.md), and the adapter under test must be checked
 by something that does not share its code path (linuxcncrsh over TCP).
 
-Usage: python3 lcnc_child.py ready | prepare | status | read-slot P | mdi CODE | run FILE
+Usage: python3 lcnc_child.py ready | prepare | status | read-slot P | mdi CODE | run FILE | trace FILE [S]
 Prints one JSON object on stdout (except ``ready``, which answers by exit code).
 """
 
@@ -98,6 +98,25 @@ def main(argv):
             _wait(s, lambda: s.current_vel > 0 or s.interp_state == linuxcnc.INTERP_IDLE, "program moving", timeout=15.0)
         except SystemExit:
             pass
+    elif cmd == "trace":  # run a program to its end, sampling the position as fast as status allows
+        errors = linuxcnc.error_channel()
+        c.mode(linuxcnc.MODE_AUTO); c.wait_complete()
+        _wait(s, lambda: s.task_mode == linuxcnc.MODE_AUTO, "auto mode")
+        c.program_open(argv[2]); c.wait_complete()
+        c.auto(linuxcnc.AUTO_RUN, 0)
+        _wait(s, lambda: s.interp_state != linuxcnc.INTERP_IDLE, lambda: f"program started ({errors.poll()})")
+        samples, end = [], time.monotonic() + float(argv[3] if len(argv) > 3 else 300)
+        while time.monotonic() < end:
+            s.poll()
+            samples.append(list(s.actual_position[:3]))
+            if s.interp_state == linuxcnc.INTERP_IDLE and s.inpos:
+                break
+            time.sleep(0.0002)
+        err = errors.poll()
+        s.poll()
+        print(json.dumps({"samples": samples, "error": list(err) if err else None, "done": s.interp_state ==
+                          linuxcnc.INTERP_IDLE, "g5x_offset": list(s.g5x_offset[:3]), "rotation_xy": s.rotation_xy}))
+        return 0
     elif cmd != "status":
         raise SystemExit(f"unknown command {cmd!r}")
     print(json.dumps(_status(s)))

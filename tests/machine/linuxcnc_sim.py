@@ -356,6 +356,14 @@ class LinuxCncSim:
         os.chmod(path, 0o644)
         return self._child("run", str(path), timeout_s=120)
 
+    def trace_program(self, text: str, name: str = "trace.ngc", timeout_s: float = 300.0) -> dict:
+        """Run ``text`` to its end and sample LinuxCNC's own position (machine coordinates, mm) all the
+        while: {"samples": [[x, y, z], ...], "error": controller error or None, "done": bool, ...}."""
+        path = self.workdir / name
+        path.write_text(text)
+        os.chmod(path, 0o644)
+        return self._child("trace", str(path), str(timeout_s), timeout_s=timeout_s + 60)
+
 
 _SHARED: LinuxCncSim | None = None
 

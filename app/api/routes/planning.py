@@ -64,37 +64,47 @@ def probing_options(session: SessionDep, files: FilesDep, setup_id: int) -> dict
 def probing_plan(request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep, setup_id: int,
                  wcs: str = Query(default="G54", max_length=8), dialect: str = Query(default="linuxcnc", max_length=16),
                  clearance_mm: float = Query(default=5.0),
-                 no_go: str | None = Query(default=None, max_length=2000)) -> dict:
+                 no_go: str | None = Query(default=None, max_length=2000),
+                 detour: str = Query(default="straight", max_length=16)) -> dict:
     from app.services import probing_summary
 
     _closed_parameters(request, tuple(p for p in svc.PROGRAM_PARAMS if p != "dry_run"))
     out = probing_summary.plan_summary(session, files, settings, setup_id, wcs=wcs, dialect=dialect,
-                                       clearance_mm=clearance_mm, no_go=no_go)
+                                       clearance_mm=clearance_mm, no_go=no_go, detour=detour)
     query = urlencode(out.pop("program_query"))
     out["program_url"] = f"{request.app.url_path_for('probing_program', setup_id=str(setup_id))}?{query}"
     return out
 
 
 @router.get("/setups/{setup_id}/probing-program", response_class=Response,
-            summary="LinuxCNC probing program for the confirmed workpiece (G38.2; dry_run: plain moves)",
+            summary="Probing program for the confirmed workpiece (touch moves; dry_run: plain moves)",
             description="Refused (409/422 with a reason `code`) unless the setup passes the export's gates, every "
                         "object asked for is located, and every move stays inside the machine's travel. Every "
-                        "parameter is checked against a closed set; unknown or repeated parameters are refused.",
+                        "parameter is checked against a closed set; unknown or repeated parameters are refused. "
+                        "`detour=subroutine`: the travel is one call per move of a subroutine the controller "
+                        "evaluates (reference safe-height method, obstacles baked in), in any of the dialects "
+                        "linuxcnc, heidenhain, fanuc, siemens (docs/controller-conventions.md).",
             responses={200: {"content": {"text/plain": {}}}})
 def probing_program(request: Request, session: SessionDep, files: FilesDep, settings: SettingsDep, setup_id: int,
                     dry_run: bool = False,
                     wcs: str = Query(default="G54", max_length=8, description="work-offset slot of the controller"),
-                    dialect: str = Query(default="linuxcnc", max_length=16, description="linuxcnc"),
+                    dialect: str = Query(default="linuxcnc", max_length=16,
+                                         description="linuxcnc; with detour=subroutine also heidenhain, fanuc, "
+                                                     "siemens"),
                     clearance_mm: float = Query(default=5.0, description="travel clearance, mm (1..20)"),
                     no_go: str | None = Query(default=None, max_length=2000,
                                               description="no-go zones the operator drew, table frame: "
                                                           "x0,y0,x1,y1,top_mm;... (objects asked for but not "
-                                                          "located are taken to be inside them)")) -> Response:
+                                                          "located are taken to be inside them)"),
+                    detour: str = Query(default="straight", max_length=16,
+                                        description="straight (every move written out) | subroutine (the "
+                                                    "controller evaluates the detour per move)")) -> Response:
     _closed_parameters(request, svc.PROGRAM_PARAMS)
     text = svc.probing_program(session, files, settings, setup_id, dry_run=dry_run, wcs=wcs, dialect=dialect,
-                               clearance_mm=clearance_mm, no_go=no_go)
+                               clearance_mm=clearance_mm, no_go=no_go, detour=detour)
+    suffix = svc.program_suffix(dialect)
     return Response(text, media_type="text/plain",
-                    headers={"Content-Disposition": f'attachment; filename="setup{setup_id}-probe.ngc"'})
+                    headers={"Content-Disposition": f'attachment; filename="setup{setup_id}-probe{suffix}"'})
 
 
 @router.post("/setups/{setup_id}/probe-results", summary="Refine the confirmed pose from probing results",
