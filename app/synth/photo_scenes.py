@@ -59,7 +59,8 @@ class PhotoShot:
 
 def shot(mesh: trimesh.Trimesh, x_mm: float, y_mm: float, c_deg: float, *, seed: int, width: int = 1280,
          height: int = 800, cam_target: tuple[float, float] | None = None, distance_mm: float = 700.0,
-         elevation_deg: float = 60.0, azimuth_deg: float = -90.0, focal_px: float = 1500.0) -> PhotoShot:
+         elevation_deg: float = 60.0, azimuth_deg: float = -90.0, focal_px: float = 1500.0,
+         intrinsics: tuple[np.ndarray, np.ndarray] | None = None) -> PhotoShot:
     """One picture of ``mesh`` at (x, y, turn c) on the T-slot table, the camera ``distance_mm`` from
     ``cam_target`` (default: the table's centre) at ``elevation_deg`` and ``azimuth_deg`` (-90: from the
     front), with the seed's noise, lens distortion and texture."""
@@ -71,6 +72,8 @@ def shot(mesh: trimesh.Trimesh, x_mm: float, y_mm: float, c_deg: float, *, seed:
     el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
     pos = tgt + distance_mm * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     K, dist = random_intrinsics(rng, width, height, (focal_px, focal_px + 1e-6))
+    if intrinsics is not None:
+        K, dist = (np.asarray(a, float) for a in intrinsics)
     scene = Scene(width=width, height=height, K=K, dist=dist, T_cam_table=look_at_pose(pos, tgt, rng.uniform(-5, 5)),
                   table_mesh=table_mesh, table_layout=layout, objects=[SceneObject("plate", mesh, T)],
                   texture_seed=int(seed))

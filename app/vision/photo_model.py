@@ -946,6 +946,15 @@ def locate(view: View, model: PhotoModel, name: str, *,
                "edge_iou": edge_iou(best.coverage, model, unexpl_mm), "cam_mm_per_px": cam_mm})
 
 
+def locate_near(view: View, model: PhotoModel, name: str, T_table_obj: np.ndarray,
+                reach_mm: float = 20.0) -> ObjectPose | ObjectFailure:
+    """:func:`locate` searched only within the model's size plus ``reach_mm`` of a pose (table frame):
+    "refine from here" after an operator moved the object on the screen."""
+    r = model.radius_mm + reach_mm
+    x, y = float(T_table_obj[0, 3]), float(T_table_obj[1, 3])
+    return locate(view, model, name, search_xy=(x - r, x + r, y - r, y + r))
+
+
 def edge_iou(coverage: float, model: PhotoModel, unexplained_mm: float) -> float:
     """Supported template edge length over (template length + unexplained edge length inside the
     outline): 1 for the right object; a plate without a hole fitted to one with it scores lower."""
