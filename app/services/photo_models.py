@@ -108,6 +108,8 @@ def teach_photo_model(session: Session, files: FileStore, *, machine_id: int, na
         raise Invalid(f"{len(pictures)} pictures: at most {MAX_PICTURES}")
     region = _box(region_mm, "region_mm", 4)
     datum = _box(datum_xy_mm, "datum_xy_mm", 2)
+    if datum is not None and max(abs(v) for v in datum) > 10_000:
+        raise Invalid(f"datum_xy_mm {list(datum)}: more than 10 m from the table origin")
     if height_mm is not None and not (0.5 <= float(height_mm) <= 1000.0):
         raise Invalid(f"height_mm {height_mm}: give the top face's height above the table, 0.5 to 1000 mm")
     K, dist = np.asarray(cam.intrinsics["K"], float), np.asarray(cam.intrinsics["dist"], float)

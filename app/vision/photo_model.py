@@ -57,7 +57,7 @@ from app.vision.object_pose.uncertainty import (
 FINE_MM_PER_PX = 0.25       # rectification of teaching and of the final fit
 SUPPORT_MM = 0.4            # a template point is supported by an image edge this close (along its normal)
 EXPLAINED_MM = 0.7          # an image edge inside the outline this close to a template point is explained
-N_BINS = 6                  # edge direction bins (mod 180 deg) of the oriented chamfer search
+TEMPLATE_SPACING_MM = 0.5   # one template point per this square
 CLUSTER_MM = 10.0           # template points in one such square share their errors (sigma's clusters)
 
 
@@ -296,8 +296,6 @@ class PhotoModel:
                           teach_cov=np.asarray(d.get("teach_cov", np.zeros((3, 3)).tolist()), float))
 
 
-TEMPLATE_SPACING_MM = 0.5
-
 
 @dataclass(frozen=True)
 class View:
@@ -419,6 +417,12 @@ def teach(views: list[View], height_mm: float, *, region_mm: tuple[float, float,
                          "0.5 to 1000 mm")
     h = float(height_mm)
     v0 = views[0]
+    if region_mm is not None:
+        x_lo, x_hi, y_lo, y_hi = (float(v) for v in region_mm)
+        if not (x_hi - x_lo >= 5 and y_hi - y_lo >= 5 and (x_hi - x_lo) * (y_hi - y_lo) <= 1.0e6
+                and max(abs(x_lo), abs(x_hi), abs(y_lo), abs(y_hi)) <= 10_000):
+            raise TeachError(f"region {list(region_mm)} mm: give [x_lo, x_hi, y_lo, y_hi] on the table, each side "
+                             "5 mm or more, at most 1 m², within 10 m of the table origin")
     # the outline on a 1 mm grid: the largest area closed by edges (gaps up to 6 mm: where the
     # table's own edges, masked out, cross the object's)
     box = region_mm if region_mm is not None else table_xy_mm
@@ -612,6 +616,11 @@ class _Fit:
     grid: PlaneGrid
     edges: PlaneEdges
 
+    @property
+    def edge_dt(self) -> np.ndarray:
+        """Distance (grid px) of every grid pixel to the nearest image edge."""
+        return cv2.distanceTransform(np.where(self.edges.canny > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
+
 
 def _coarse_starts(view: View, model: PhotoModel, search_xy: tuple[float, float, float, float],
                    n_starts: int = 3) -> list[tuple[float, float, float, float]]:
@@ -781,27 +790,15 @@ def _sigma(fit: _Fit, model: PhotoModel, teach_cov: np.ndarray | None = None) ->
     return cov3, cov6
 
 
-def _dt_coverage(fit: _Fit, model: PhotoModel, x: float, y: float, t: float) -> float:
+def _dt_coverage(fit: _Fit, model: PhotoModel, x: float, y: float, t: float, d: np.ndarray) -> float:
     """Share of template points within ``SUPPORT_MM`` of an image edge at pose (x, y, t) (no normals:
-    for the distinctiveness probes)."""
-    d = _edge_dt(fit)
+    for the distinctiveness probes); ``d`` is ``fit.edge_dt``."""
     Q, _ = _transform(model, x, y, t)
     ij = np.rint(fit.grid.to_px(Q)).astype(int)
     ok = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < fit.grid.width) & (ij[:, 1] < fit.grid.height)
     v = np.full(len(Q), 1e9)
     v[ok] = d[ij[ok, 1], ij[ok, 0]] * fit.grid.mm_per_px
     return float(np.mean(v < SUPPORT_MM + 0.15))
-
-
-_DT_CACHE: dict[int, np.ndarray] = {}
-
-
-def _edge_dt(fit: _Fit) -> np.ndarray:
-    key = id(fit.edges)
-    if key not in _DT_CACHE:
-        _DT_CACHE.clear()
-        _DT_CACHE[key] = cv2.distanceTransform(np.where(fit.edges.canny > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
-    return _DT_CACHE[key]
 
 
 def _unexplained(fit: _Fit, model: PhotoModel) -> tuple[float, float, float]:
@@ -915,8 +912,9 @@ def locate(view: View, model: PhotoModel, name: str, *,
     probes = [(best.x + dx, best.y + dy, best.theta) for dx, dy in ((probe_mm, 0), (-probe_mm, 0), (0, probe_mm),
                                                                      (0, -probe_mm))]
     probes += [(best.x, best.y, best.theta + s * probe_mm / model.radius_mm) for s in (1, -1)]
-    base = _dt_coverage(best, model, best.x, best.y, best.theta)
-    distinct = float(base - max(_dt_coverage(best, model, *p) for p in probes))
+    dt = best.edge_dt
+    base = _dt_coverage(best, model, best.x, best.y, best.theta, dt)
+    distinct = float(base - max(_dt_coverage(best, model, *p, dt) for p in probes))
     r = best.residual_mm
     inl = best.found & (np.abs(np.nan_to_num(r, nan=1e9)) < SUPPORT_MM)
     flags = []

@@ -3,55 +3,18 @@ then locate a repeat placement through the normal setup flow and get the right p
 
 from __future__ import annotations
 
-from functools import cache
-
-import cv2
 import numpy as np
 import pytest
 
-from app.synth.photo_scenes import plate_a, shot
+from tests.support.photo_pictures import jpeg, photo_machine, pictures
 from tests.support.sample_setup import wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.integration]
 
-K = np.array([[1500.0, 0, 645.0], [0, 1500.0, 398.0], [0, 0, 1]])
-DIST = np.array([-0.09, 0.06, 2e-4, -3e-4, 0.0])
-INTRINSICS = {"width": 1280, "height": 800, "K": K.tolist(), "dist": DIST.tolist()}
-
-
-@cache
-def pictures():
-    """Two teach pictures (the plate turned between them, the camera elsewhere) and one repeat placement
-    (another place, turn and camera pose), all from one camera; with the truth of each placement."""
-    plate = plate_a()
-    kw = {"intrinsics": (K, DIST)}
-    teach1 = shot(plate, 380, 200, 10, seed=11, **kw)
-    teach2 = shot(plate, 430, 180, 130, seed=12, azimuth_deg=-60, elevation_deg=55, **kw)
-    repeat = shot(plate, 300, 160, 47, seed=13, azimuth_deg=-110, elevation_deg=62, distance_mm=650,
-                  cam_target=(330, 170), **kw)
-    return teach1, teach2, repeat
-
-
-def jpeg(img: np.ndarray) -> bytes:
-    return cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
-
-
-def machine(client) -> int:
-    cam = client.post("/api/v1/cameras", json={"name": "photo cam", "intrinsics": INTRINSICS})
-    assert cam.status_code == 201, cam.text
-    models = client.get("/api/v1/models", params={"limit": 200}).json()["data"]
-    table = next(m["id"] for m in models if m["key"] == "tslot_table_800x400")
-    r = client.post("/api/v1/machines", json={
-        "name": "photo mill", "table_model_id": table, "camera_ids": [cam.json()["id"]],
-        "T_machine_table": [[1, 0, 0, -450], [0, 1, 0, -250], [0, 0, 1, -320], [0, 0, 0, 1]],
-        "travel_mm": {"x": [-600, 600], "y": [-400, 400], "z": [-500, 0]}})
-    assert r.status_code == 201, r.text
-    return r.json()["id"]
-
 
 def test_teach_from_pictures_then_locate_a_repeat_placement(client) -> None:
     teach1, teach2, repeat = pictures()
-    mid = machine(client)
+    mid = photo_machine(client)
     files = [("pictures", (f"teach{i}.jpg", jpeg(s.image), "image/jpeg")) for i, s in enumerate((teach1, teach2))]
     # the datum clicked on the teach picture: the plate's front-left top corner, in table coordinates
     corner = teach1.T_table_obj @ np.array([0.0, 0.0, 12.0, 1.0])
@@ -96,7 +59,7 @@ def test_teach_from_pictures_then_locate_a_repeat_placement(client) -> None:
 
 def test_teach_refusals_say_why(server, client) -> None:
     teach1, _, _ = pictures()
-    mid = machine(client)
+    mid = photo_machine(client)
     pic = [("pictures", ("t.jpg", jpeg(teach1.image), "image/jpeg"))]
     r = client.post("/api/v1/models/photo", data={"machine_id": str(mid), "name": "x", "height_mm": "12"})
     assert r.status_code == 422 and "no picture" in r.json()["detail"]
