@@ -502,9 +502,11 @@ def _agree(model: PhotoModel, others: list[View], table_xy_mm, min_agree: float)
 
 
 def _face(model: PhotoModel) -> PhotoModel:
-    """Outline and holes from the template's own edges: the area their loops close (gaps to 1.5 mm),
-    and the areas closed inside it. After several pictures agree, this is the top face without the
-    first picture's side wall and shadow."""
+    """The top face from the template's own edges: the largest area they close (gaps to 4 mm) is the
+    face; the template keeps the edges that border it (its outline, the rims of its holes and pockets,
+    lines on it), and drops what lies beyond them (inside a hole: its wall and what shows through it;
+    beyond the outline: a side wall's foot), which depends on the view. Outline and holes are redrawn
+    from the face. Where the edges do not close a face, the model stays as it is."""
     P = model.points_mm
     lo = P.min(axis=0) - 4
     g = PlaneGrid(float(lo[0]), float(lo[1]), 0.25, int((P[:, 0].max() - lo[0] + 4) / 0.25) + 1,
@@ -512,14 +514,34 @@ def _face(model: PhotoModel) -> PhotoModel:
     img = np.zeros((g.height, g.width), np.uint8)
     ij = np.rint(g.to_px(P)).astype(int)
     img[ij[:, 1], ij[:, 0]] = 255
-    _, outers, holes = _silhouette(img, 12)
-    if not outers:
+
+    def disk(r: int) -> np.ndarray:
+        return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+
+    thick = cv2.dilate(img, disk(8))
+    outside = np.pad(thick, 1)
+    cv2.floodFill(outside, np.zeros((g.height + 4, g.width + 4), np.uint8), (0, 0), 128)
+    free = ((thick == 0) & (outside[1:-1, 1:-1] != 128)).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(free, connectivity=4)
+    if n < 2:
         return model
-    outer = max(outers, key=lambda c: cv2.contourArea(c.astype(np.float32)))
-    if cv2.contourArea(outer.astype(np.float32)) * 0.0625 < 0.5 * cv2.contourArea(model.outline_mm.astype(np.float32)):
+    face_id = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    face = np.where(lab == face_id, 255, 0).astype(np.uint8)
+    area_mm2 = stats[face_id, cv2.CC_STAT_AREA] * g.mm_per_px ** 2
+    if area_mm2 < 0.5 * cv2.contourArea(model.outline_mm.astype(np.float32)):
         return model      # the edges do not close the face: keep the outline seen in the picture
-    return PhotoModel(**{**model.__dict__, "outline_mm": g.to_mm(outer),
-                         "holes_mm": tuple(g.to_mm(h) for h in holes)})
+    keep = cv2.dilate(face, disk(10))[ij[:, 1], ij[:, 0]] > 0
+    outers, _ = cv2.findContours(cv2.dilate(face, disk(8)), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    outer = max(outers, key=cv2.contourArea)[:, 0, :].astype(float)
+    body = np.zeros_like(face)
+    cv2.fillPoly(body, [np.rint(outer).astype(np.int32)], 255)
+    holes_px = cv2.subtract(body, cv2.dilate(face, disk(8)))
+    hs, _ = cv2.findContours(cv2.morphologyEx(holes_px, cv2.MORPH_OPEN, disk(2)), cv2.RETR_EXTERNAL,
+                             cv2.CHAIN_APPROX_SIMPLE)
+    pts = P[keep]
+    return PhotoModel(**{**model.__dict__, "points_mm": pts, "normal_rad": model.normal_rad[keep],
+                         "cluster": _clusters(pts), "outline_mm": g.to_mm(outer),
+                         "holes_mm": tuple(g.to_mm(h[:, 0, :].astype(float)) for h in hs if len(h) >= 3)})
 
 
 def _clusters(pts: np.ndarray) -> np.ndarray:
