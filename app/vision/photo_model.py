@@ -11,8 +11,9 @@ shadow and the table's own edges (all below the plane) do not line up between vi
 * :func:`teach` makes a :class:`PhotoModel` from one or more pictures of the object where it lies:
   the edges of its top face (subpixel, mm, with their normals) in an object frame whose origin is the
   outline's centroid on the table (z = 0) and whose axes are the table's at teaching, the outline and
-  its holes (for a 2.5-D mesh), its symmetries, and how the teach picture maps to the table. Several
-  pictures of the same placement keep only the edges that all (or most) of them show.
+  its holes (for a 2.5-D mesh), its symmetries, and how the teach picture maps to the table. Further
+  pictures (the object moved or turned, the camera anywhere) keep only the edges most of them show;
+  of the edges the template keeps those that border the top face (its outline, hole rims).
 * :func:`measure_height` finds the top face's height from two pictures taken from different camera
   poses: the plane where the rectified edges of both coincide (a plane sweep).
 * :func:`locate` finds a taught object in a later picture: an oriented chamfer search over x, y and
@@ -227,6 +228,8 @@ def _sample(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     shape = uv.shape[:-1]
     flat = uv.reshape(-1, 2)
     n = len(flat)
+    if n == 0:
+        return np.zeros(shape, np.float32)
     cols = 1024                       # remap's maps must stay under 32767 rows and columns
     pad = np.full(((n + cols - 1) // cols * cols, 2), -10.0, np.float32)
     pad[:n] = flat
@@ -402,7 +405,8 @@ def teach(views: list[View], height_mm: float, *, region_mm: tuple[float, float,
           min_agree: float = 0.5) -> tuple[PhotoModel, np.ndarray]:
     """A photo model from pictures of the object lying on the table (all of one placement).
 
-    views : the pictures (the camera may move between them; the object may not)
+    views : the pictures; the first shows where the obj frame is. The others may show the object moved
+        or turned (better: turned, so that side walls and shadow fall elsewhere) and the camera anywhere
     height_mm : height of the object's top face above the table
     region_mm : (x_lo, x_hi, y_lo, y_hi) table box that holds the object; None: found as the largest
         group of edges on the table (``table_xy_mm``) besides those the views' ``ignore`` masks explain
@@ -586,7 +590,8 @@ def measure_height(views: list[View], region_mm: tuple[float, float, float, floa
                    z_range_mm: tuple[float, float] = (2.0, 200.0)) -> tuple[float, float]:
     """Height (mm) of an object's top face from two or more pictures of it (one placement) taken from
     different camera poses: the plane ``z`` on which the rectified edges of the views coincide best
-    (a plane sweep, 1 mm then 0.1 mm steps, inside ``region_mm``). Returns (height, the share of edge
+    (a plane sweep, 1 mm steps on a 1 mm grid, then 0.1 mm steps on a 0.25 mm grid, inside
+    ``region_mm``). Returns (height, the share of edge
     points that coincide there). Raises :class:`TeachError` when the views cannot tell."""
     if len(views) < 2:
         raise TeachError("measuring the height needs two pictures from different camera poses")
@@ -610,7 +615,7 @@ def measure_height(views: list[View], region_mm: tuple[float, float, float, floa
         return float(np.mean(dmap[ij[:, 1], ij[:, 0]] * res < 2.0 * res))
 
     zs = np.arange(z_range_mm[0], z_range_mm[1] + 1e-9, 1.0)
-    scores = [agreement(z, 0.5) for z in zs]
+    scores = [agreement(z, 1.0) for z in zs]
     z0 = float(zs[int(np.argmax(scores))])
     fine = np.arange(z0 - 1.0, z0 + 1.0001, 0.1)
     fs = [agreement(z, 0.25) for z in fine]

@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.support.photo_pictures import jpeg, photo_machine, pictures
+from tests.support.photo_pictures import (
+    jpeg,
+    other_camera_pose,
+    photo_machine,
+    pictures,
+)
 from tests.support.sample_setup import wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.integration]
@@ -84,3 +89,16 @@ def test_teach_refusals_say_why(server, client) -> None:
     r = client.post(f"/api/v1/models/{r.json()['id']}/revisions",
                     files={"file": ("x.stl", b"solid x\nendsolid x\n", "application/octet-stream")})
     assert r.status_code == 422 and r.json()["code"] == "photo_model_geometry"
+
+
+def test_height_measured_from_two_camera_poses(client) -> None:
+    """No height given: two pictures of the unmoved plate from two camera poses measure it (12 mm)."""
+    teach1, _, _ = pictures()
+    mid = photo_machine(client)
+    files = [("pictures", (f"v{i}.jpg", jpeg(s.image), "image/jpeg")) for i, s in enumerate((teach1, other_camera_pose()))]
+    r = client.post("/api/v1/models/photo", files=files, data={"machine_id": str(mid), "name": "Plate A (measured)",
+                                                                "kind": "clamp"})
+    assert r.status_code == 201, r.text
+    photo = r.json()["revision"]["photo"]
+    assert photo["height_source"] == "measured" and photo["height_mm"] == pytest.approx(12.0, abs=0.5)
+    assert r.json()["kind"] == "clamp"

@@ -44,3 +44,10 @@ def photo_machine(client) -> int:
         "travel_mm": {"x": [-600, 600], "y": [-400, 400], "z": [-500, 0]}})
     assert r.status_code == 201, r.text
     return r.json()["id"]
+
+
+@cache
+def other_camera_pose():
+    """The first teach placement seen from another camera pose (the height from two views)."""
+    return shot(plate_a(), 380, 200, 10, seed=14, azimuth_deg=-45, elevation_deg=50, distance_mm=750,
+                intrinsics=(K, DIST))
