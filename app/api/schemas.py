@@ -29,6 +29,10 @@ class RevisionPublic(BaseModel):
                                   "mesh's upward faces; []: carries nothing.")
     summary: dict[str, Any] = Field(description="Bounding box (mm), face and vertex counts, watertightness.")
     resting_poses: list[dict[str, Any]] = Field(description="Stable poses on a plane: T_plane_obj and probability.")
+    photo: dict[str, Any] | None = Field(
+        default=None, description="A photo model's template (taught from pictures): height_mm, n_views, "
+                                  "edge_length_mm, holes, teach_grid (maps a pixel of the teach picture to the table, "
+                                  "mm), T_table_obj_teach, teach_picture_url; null for a CAD model.")
     note: str
     created_at: datetime
 
@@ -39,6 +43,7 @@ class ModelPublic(BaseModel):
     kind: str
     name: str
     description: str
+    source: str = Field(default="cad", description="cad: from a CAD file; photo: taught from pictures")
     current_revision: int
     created_at: datetime
     deleted_at: datetime | None

@@ -457,3 +457,21 @@ def example_library() -> list[ExampleModel]:
             "Precision parallel (one of a pair) 150 long, 32 high, 8 thick. Frame: centre of the base face, "
             "x along the length, z up. Support surface: the top face (z 32).", [top_face(par32)]),
     ]
+
+
+def taught_prism(outline_xy: np.ndarray, holes_xy: list[np.ndarray], height_mm: float) -> trimesh.Trimesh:
+    """The 2.5-D body of a photo model (app/vision/photo_model.py): its top face's outline (N, 2) with
+    its holes, in its obj frame (mm), extruded from the table (z = 0) to ``height_mm``. Holes that do
+    not lie inside the outline are left out; an outline that does not close a valid area is made valid
+    first (``buffer(0)``)."""
+    outer = sg.Polygon(np.asarray(outline_xy, float)).buffer(0)
+    if outer.geom_type == "MultiPolygon":
+        outer = max(outer.geoms, key=lambda g: g.area)
+    inner = [sg.Polygon(np.asarray(h, float)).buffer(0) for h in holes_xy if len(h) >= 3]
+    body = outer
+    for h in inner:
+        if h.is_valid and not h.is_empty and outer.contains(h):
+            body = body.difference(h)
+    if body.geom_type == "MultiPolygon":
+        body = max(body.geoms, key=lambda g: g.area)
+    return _prism(body.simplify(0.05), 0.0, float(height_mm))

@@ -48,6 +48,9 @@ def _jsonable(obj: Any) -> Any:
     return obj
 
 
+jsonable = _jsonable
+
+
 def check_kind_units(kind: str | None, units: str | None) -> None:
     if kind is not None and kind not in KINDS:
         raise Invalid(f"unknown kind {kind!r}; use one of: {', '.join(KINDS)}")
@@ -168,6 +171,9 @@ def add_revision(session: Session, files: FileStore, model_id: int, *, data: byt
     prev = get_revision(session, model_id)
     fields = prev.model_dump(exclude={"id", "revision", "created_at", "note"})
     changed = False
+    if prev.photo and (data is not None or units is not None):
+        raise Invalid(f"model {model_id} was taught from pictures: its geometry comes from them, not from a "
+                      "file (teach it again to change it)", code="photo_model_geometry")
     if data is not None:
         fields.update(_process_geometry(files, session, data, filename or prev.source_filename,
                                         units or prev.units, max_bytes, max_faces))

@@ -31,6 +31,7 @@ from app.store.models import Capture, Job, Setup, utcnow
 from app.vision import object_pose
 from app.vision.image_header import ImageHeaderError, image_size
 from app.vision.localize import Candidate, draw_pose_overlay, localize, marker_labels_table, object_entry
+from app.vision.photo_model import PhotoModel, View, known_edge_mask, locate_near
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +41,19 @@ LOCATED_KINDS = ("workpiece", "clamp", "support")   # what a setup looks for on 
 
 def png_bytes(image: np.ndarray) -> bytes:
     return cv2.imencode(".png", image)[1].tobytes()
+
+
+def calibrated_camera(session: Session, machine, camera_id: int | None):
+    """The camera to use (given, else the machine's first), which must have intrinsics; 422 with the reason."""
+    if camera_id is None:
+        if not machine.camera_ids:
+            raise Invalid(f"machine {machine.id} has no camera; give camera_id", code="no_camera")
+        camera_id = machine.camera_ids[0]
+    cam = get_camera(session, camera_id)
+    if not cam.intrinsics:
+        raise Invalid(f"camera {cam.id} ({cam.name}) has no intrinsics; calibrate it first "
+                      f"(POST /api/v1/cameras/{cam.id}/calibrations)", code="camera_not_calibrated")
+    return cam
 
 
 #: a rotary axis angle beyond this is a typing error (100 turns)
@@ -78,14 +92,7 @@ def create_setup(session: Session, files: FileStore, *, machine_id: int, camera_
     machine = get_machine(session, machine_id)
     if table_angle_deg is not None and not math.isfinite(table_angle_deg):
         raise Invalid(f"table_angle_deg: must be a finite number, got {table_angle_deg}")
-    if camera_id is None:
-        if not machine.camera_ids:
-            raise Invalid(f"machine {machine_id} has no camera; give camera_id", code="no_camera")
-        camera_id = machine.camera_ids[0]
-    cam = get_camera(session, camera_id)
-    if not cam.intrinsics:
-        raise Invalid(f"camera {cam.id} ({cam.name}) has no intrinsics; calibrate it first "
-                      f"(POST /api/v1/cameras/{cam.id}/calibrations)", code="camera_not_calibrated")
+    cam = calibrated_camera(session, machine, camera_id)
     models = []
     for mid in model_ids:
         m = library.get_model(session, mid, include_deleted=False)
@@ -207,7 +214,8 @@ def library_candidates(session: Session, files: FileStore, model_refs: list[dict
         mesh = prepared.mesh if prepared is not None else load_mesh(files.read(rev.glb_sha256), "model.glb", "mm")
         cand = Candidate(name=m.name, mesh=mesh, kind=m.kind, model_id=m.id, revision=rev.revision,
                          T_obj_datum=np.asarray(rev.T_obj_datum) if rev.T_obj_datum else None,
-                         support_surfaces=rev.support_surfaces)
+                         support_surfaces=rev.support_surfaces,
+                         photo=PhotoModel.from_dict(rev.photo) if rev.photo else None)
         if prepared is not None and prepared.name == m.name:
             cand.prepared = prepared
         else:
@@ -541,10 +549,15 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
     (table,) = library_candidates(session, files, [{"model_id": machine.table_model_id,
                                                     "revision": machine.table_revision}])
     layout = library.get_revision(session, machine.table_model_id, machine.table_revision).fiducials
-    pose = object_pose.locate_object(image, K, dist, result.T_cam_table, cand.prepare(),
-                                     start_poses=[obj.pose],
-                                     known_models=((table.prepare(), np.eye(4)),),
-                                     known_regions=marker_labels_table(layout or {}))
+    if cand.photo is not None:      # a photo model: its search, near the operator's pose
+        ign = known_edge_mask(image.shape[:2], K, dist, result.T_cam_table, [(table.prepare(), np.eye(4))],
+                              marker_labels_table(layout or {}))
+        pose = locate_near(View(image, K, dist, result.T_cam_table, ign), cand.photo, cand.name, obj.pose)
+    else:
+        pose = object_pose.locate_object(image, K, dist, result.T_cam_table, cand.prepare(),
+                                         start_poses=[obj.pose],
+                                         known_models=((table.prepare(), np.eye(4)),),
+                                         known_regions=marker_labels_table(layout or {}))
     if not pose:
         raise Invalid(f"refinement from this pose failed: {pose.reason}; nudge the part closer to where "
                       "it is in the picture and try again")

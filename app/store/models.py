@@ -48,6 +48,8 @@ class LibraryModel(SQLModel, table=True):
     kind: str = Field(max_length=20, index=True)
     name: str = Field(max_length=200, index=True)
     description: str = Field(default="", max_length=2000)
+    source: str = Field(default="cad", max_length=20,
+                        description="cad: from a CAD file; photo: taught from pictures (docs/photo-models.md)")
     current_revision: int = 1
     created_at: datetime = Field(default_factory=utcnow)
     deleted_at: datetime | None = None
@@ -73,6 +75,8 @@ class ModelRevision(SQLModel, table=True):
     support_surfaces: list[dict] | None = json_field()
     summary: dict = json_field(default_factory=dict, nullable=False)
     resting_poses: list[dict] = json_field(default_factory=list, nullable=False)
+    # a photo model: its edge template, pictures and teach picture (app/vision/photo_model.py); None: CAD
+    photo: dict | None = json_field()
     note: str = Field(default="", max_length=500)
     created_at: datetime = Field(default_factory=utcnow)
 

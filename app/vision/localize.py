@@ -26,6 +26,8 @@ from app.vision import object_pose
 from app.vision.blas_threads import one_blas_thread
 from app.vision.fiducials import draw_table, locate_table
 from app.vision.overlay_text import put_banner, put_label, style_for
+from app.vision.photo_model import PhotoModel, View, decide_lookalikes, known_edge_mask
+from app.vision.photo_model import locate as locate_photo
 
 FIXTURE_KINDS = CARRYING_KINDS                 # clamps and supports: they carry parts
 # Fixtures are often half hidden by the part they hold (jaws, parallels under it): they are accepted
@@ -55,6 +57,9 @@ class Candidate:
     # fixtures: the plane patches a part can rest on, in the model frame ({"name", "z_mm",
     # "outline_xy"}); None: derived from the mesh's upward faces
     support_surfaces: list[dict] | None = None
+    # a model taught from pictures (app/vision/photo_model.py): located by its edge template in the
+    # table plane instead of the CAD search; ``mesh`` is then its outline extruded to its height
+    photo: PhotoModel | None = None
 
     def prepare(self) -> PreparedModel:
         if self.prepared is None:
@@ -185,35 +190,64 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
 
     known = ((table_model.prepare(), np.eye(4)),) if table_model is not None else ()
     labels = marker_labels_table(table_layout)
+    photo_view = None
+    if any(c.photo is not None for c in candidates):   # the picture as photo models see it
+        photo_view = View(image, K, dist, T_cam_table, known_edge_mask(image.shape[:2], K, dist, T_cam_table,
+                                                                       list(known), labels))
+    table_xy = _table_xy(table_model, table_layout)
     # --- objects: clamps first (they occlude the workpiece), then workpieces
     ordered = sorted(candidates, key=lambda c: 0 if c.kind == "clamp" else 1)
     located: list[tuple[Candidate, Any]] = []
     objects, not_found = [], []
     if recognise and ordered:
         t = time.perf_counter()
-        prepared = [c.prepare() for c in ordered]
-        rec = object_pose.recognise(image, K, dist, T_cam_table, prepared, min_score=max(min_score, 0.6),
-                                    min_margin=min_margin, height_offsets_mm=height_offsets_mm, known_models=known, free_height=free_height,
-                                    known_regions=labels)
+        cad = [c for c in ordered if c.photo is None]
+        rec = None
         by_name = {c.name: c for c in ordered}
-        for pose in rec.accepted:
+        accepted, ranked, reasons = [], [], []
+        if cad:
+            rec = object_pose.recognise(image, K, dist, T_cam_table, [c.prepare() for c in cad],
+                                        min_score=max(min_score, 0.6), min_margin=min_margin,
+                                        height_offsets_mm=height_offsets_mm, known_models=known,
+                                        free_height=free_height, known_regions=labels)
+            accepted += list(rec.accepted)
+            ranked += list(rec.ranked)
+            if not rec:
+                reasons.append(rec.reason)
+        photo = [c for c in ordered if c.photo is not None]
+        if photo:
+            got, why = _recognise_photo(photo_view, photo, table_xy, max(min_score, 0.6), min_margin, ranked)
+            accepted, lost = _merge_by_place(accepted, got, by_name, min_margin)
+            ranked += lost
+            reasons += why
+        for pose in accepted:
             located.append((by_name[pose.model_name], pose))
-        msg = ("recognised " + ", ".join(p.model_name for p in rec.accepted)) if rec else rec.reason
-        done(Stage("recognition", bool(rec), (time.perf_counter() - t) * 1e3, msg, rec.to_dict(),
+        reason = "" if accepted else "not recognised: " + "; ".join(r.removeprefix("not recognised: ")
+                                                                      for r in reasons if r)
+        msg = ("recognised " + ", ".join(p.model_name for p in accepted)) if accepted else reason
+        data = {"ok": bool(accepted), "accepted": [a.to_dict() for a in accepted], "ranked": ranked,
+                "reason": reason, "timings_ms": dict(rec.timings_ms) if rec is not None else {}}
+        done(Stage("recognition", bool(accepted), (time.perf_counter() - t) * 1e3, msg, data,
                    draw_overlay(image, K, dist, table, located)))
-        if not rec:
-            not_found.append({"name": None, "reason": rec.reason, "ranked": list(rec.ranked)})
+        if not accepted:
+            not_found.append({"name": None, "reason": reason, "ranked": ranked})
     elif chain:
         located, not_found = _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done,
-                                           min_score=min_score, min_margin=min_margin)
+                                           min_score=min_score, min_margin=min_margin, photo_view=photo_view,
+                                           photo_xy=table_xy)
     else:
         for cand in ordered:
             t = time.perf_counter()
-            occluders = [(c.prepare(), p.T_table_obj) for c, p in located if isinstance(p, object_pose.ObjectPose)]
-            pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(), occluder_models=occluders,
-                                             min_score=min_score, min_margin=min_margin,
-                                             height_offsets_mm=height_offsets_mm, known_models=known, free_height=free_height,
-                                             known_regions=labels)
+            if cand.photo is not None:
+                pose = locate_photo(photo_view, cand.photo, cand.name, search_xy=table_xy, min_score=min_score,
+                                    min_margin=min_margin)
+            else:
+                occluders = [(c.prepare(), p.T_table_obj) for c, p in located
+                             if isinstance(p, object_pose.ObjectPose)]
+                pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(),
+                                                 occluder_models=occluders, min_score=min_score,
+                                                 min_margin=min_margin, height_offsets_mm=height_offsets_mm,
+                                                 known_models=known, free_height=free_height, known_regions=labels)
             _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table)
     for i, (cand, pose) in enumerate(located):
         objects.append(object_entry(cand, pose, COLOURS[i % len(COLOURS)]))
@@ -253,7 +287,68 @@ def _report(cand, pose, ms, located, not_found, done, image, K, dist, table, cha
                draw_overlay(image, K, dist, table, [(cand, pose)])))
 
 
-def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done, *, min_score, min_margin):
+def _table_xy(table_model: Candidate | None, layout: dict) -> tuple[float, float, float, float]:
+    """(x_lo, x_hi, y_lo, y_hi) of the table top (mm, table frame) where photo models are searched: the
+    table model's extent, else the markers' (grown by 100 mm)."""
+    if table_model is not None:
+        b = table_model.mesh.bounds
+        return float(b[0, 0]), float(b[1, 0]), float(b[0, 1]), float(b[1, 1])
+    from app.vision.fiducials import marker_corners_table_mm
+
+    c = np.vstack([marker_corners_table_mm(m) for m in layout.get("markers", [])] or [np.zeros((1, 3))])
+    return (float(c[:, 0].min() - 100), float(c[:, 0].max() + 100), float(c[:, 1].min() - 100),
+            float(c[:, 1].max() + 100))
+
+
+def _recognise_photo(view: View, cands: list[Candidate], table_xy, min_score: float, min_margin: float,
+                     ranked: list) -> tuple[list, list[str]]:
+    """Photo models in the picture: each located on its own (its checks refuse an object with edges it
+    lacks or without its own inner edges), then look-alikes at one place decided by the edges in which
+    they differ (:func:`app.vision.photo_model.decide_lookalikes`). Returns (accepted poses, reasons)."""
+    found = []
+    for c in cands:
+        p = locate_photo(view, c.photo, c.name, search_xy=table_xy, min_score=min_score, min_margin=min_margin)
+        ranked.append({"model": c.name, "score": float(p.score if p else p.best_score), "ok": bool(p),
+                       "reason": "" if p else p.reason, "source": "photo"})
+        if p:
+            found.append((c.name, c.photo, p))
+    if not found:
+        return [], ["photo models: " + "; ".join(r["reason"] for r in ranked if r.get("source") == "photo")]
+    keep, refused = decide_lookalikes(view, found, min_margin=min_margin)
+    for i, why in refused.items():
+        ranked.append({"model": found[i][0], "score": float(found[i][2].score), "ok": False, "reason": why,
+                       "source": "photo"})
+    return [found[i][2] for i in keep], list(dict.fromkeys(refused.values()))
+
+
+def _merge_by_place(cad: list, photo: list, by_name: dict, min_margin: float) -> tuple[list, list]:
+    """CAD and photo models accepted at the same place (centres closer than half the larger model's
+    size): the better score stays when it leads by ``min_margin``, else neither (ambiguous)."""
+    out, lost = list(cad), []
+    for p in photo:
+        size_p = float(np.linalg.norm(by_name[p.model_name].mesh.extents[:2]))
+        clash = next((q for q in out if np.hypot(*(q.T_table_obj[:2, 3] - p.T_table_obj[:2, 3]))
+                      < 0.25 * max(size_p, float(np.linalg.norm(by_name[q.model_name].mesh.extents[:2])))), None)
+        if clash is None:
+            out.append(p)
+        elif p.score >= clash.score + min_margin:
+            out.remove(clash)
+            out.append(p)
+            lost.append({"model": clash.model_name, "score": clash.score, "ok": False,
+                         "reason": f"lost to the photo model {p.model_name} at the same place"})
+        elif clash.score < p.score + min_margin:
+            out.remove(clash)
+            lost += [{"model": n, "score": s, "ok": False,
+                      "reason": f"{p.model_name} and {clash.model_name} fit the same place about equally well"}
+                     for n, s in ((p.model_name, p.score), (clash.model_name, clash.score))]
+        else:
+            lost.append({"model": p.model_name, "score": p.score, "ok": False,
+                         "reason": f"lost to {clash.model_name} at the same place"})
+    return out, lost
+
+
+def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done, *, min_score, min_margin,
+                  photo_view: View | None = None, photo_xy=None):
     """The support chain: fixtures first (biggest first, each on the surfaces found so far, standing
     as modelled), then every workpiece on all support surfaces and over risers of unknown height,
     with the located fixtures' edges removed from the image and their bodies as occluders."""
@@ -281,13 +376,16 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
             planes = search_planes(seats, radius, table_risers=(0.0,), fixture_risers=(0.0,))
         else:
             planes = search_planes(surfaces, radius)
-        pose = object_pose.locate_object(image, K, dist, T_cam_table, model, occluder_models=occ,
-                                         table_extent_xy=table_xy,
-                                         min_score=FIXTURE_MIN_SCORE if fixture else min_score,
-                                         min_margin=min_margin, height_offsets_mm=tuple(planes),
-                                         free_height=not fixture, known_models=kn, known_regions=labels,
-                                         known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
-                                         **(FIXTURE_OPTIONS if fixture else {}))
+        if cand.photo is not None:     # taught from pictures: it rests on the table where it was taught
+            pose = locate_photo(photo_view, cand.photo, cand.name, search_xy=photo_xy or table_xy,
+                                min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin)
+        else:
+            pose = object_pose.locate_object(
+                image, K, dist, T_cam_table, model, occluder_models=occ, table_extent_xy=table_xy,
+                min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin,
+                height_offsets_mm=tuple(planes), free_height=not fixture, known_models=kn, known_regions=labels,
+                known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
+                **(FIXTURE_OPTIONS if fixture else {}))
         chain_text = ""
         if pose and fixture:
             carrier = _carrier(seats, pose, cand)

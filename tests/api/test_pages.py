@@ -42,6 +42,16 @@ def test_setup_page_has_the_automation_ids(service):
         assert f'data-testid="{tid}"' in html, tid
 
 
+def test_library_page_has_the_teach_from_camera_form(service):
+    with service.client(None) as c:
+        html = c.get("/library").text
+        js = c.get("/static/library.js").text
+    for tid in ("teach-form", "teach-machine", "teach-name", "teach-kind", "teach-height", "teach-pictures",
+                "teach-grab", "teach-submit", "teach-message", "teach-picture"):
+        assert f'data-testid="{tid}"' in html, tid
+    assert "/api/v1/models/photo" in js and "T_obj_datum" in js
+
+
 def test_static_files_and_no_way_out(service):
     with service.client(None) as c:
         assert c.get("/static/app.css").headers["content-type"].startswith("text/css")

@@ -10,7 +10,7 @@ from starlette.concurrency import run_in_threadpool
 from app.api.deps import AdminPrincipal, FilesDep, SessionDep, SettingsDep, get_principal
 from app.api.schemas import ModelPublic, Page, RevisionPublic
 from app.api.uploads import content_disposition, json_form, safe_filename
-from app.services import library
+from app.services import library, photo_models
 from app.services.audit import audit
 
 router = APIRouter(prefix="/models", tags=["models"], dependencies=[Depends(get_principal)])
@@ -24,9 +24,11 @@ SURFACES_HELP = ("Support surfaces JSON (clamps and supports): plane patches a p
 def to_public(model, rev) -> ModelPublic:
     """A library model (``LibraryModel`` row) at one of its revisions (``ModelRevision`` row)."""
     q = f"?revision={rev.revision}"
+    public_rev = RevisionPublic.model_validate(rev, from_attributes=True)
+    public_rev.photo = photo_models.photo_summary(rev.photo, model.id, rev.revision)
     return ModelPublic(
         **model.model_dump(include=set(ModelPublic.model_fields) - {"revision", "mesh_url", "thumbnail_url"}),
-        revision=RevisionPublic.model_validate(rev, from_attributes=True),
+        revision=public_rev,
         mesh_url=f"/api/v1/models/{model.id}/mesh.glb{q}",
         thumbnail_url=f"/api/v1/models/{model.id}/thumbnail.png{q}",
     )
@@ -63,6 +65,48 @@ async def create_model(
         support_surfaces=surfaces, max_bytes=max_bytes, max_faces=settings.max_mesh_faces)
     audit(session, admin.label(), "model.create", model_id=model.id, kind=model.kind, name=model.name)
     return to_public(model, library.get_revision(session, model.id))
+
+
+@router.post("/photo", status_code=status.HTTP_201_CREATED, response_model=ModelPublic,
+             summary="Teach a workpiece or clamp from the machine's camera (a photo model, no CAD)")
+async def teach_photo_model(
+    session: SessionDep, files: FilesDep, settings: SettingsDep, admin: AdminPrincipal,
+    machine_id: Annotated[int, Form(description="The machine whose table (with its markers) the pictures show")],
+    name: Annotated[str, Form(examples=["Fixture plate 7"])],
+    kind: Annotated[str, Form(description="workpiece | clamp")] = "workpiece",
+    height_mm: Annotated[float | None, Form(description="Height of the object's top face above the table, mm; "
+                                                        "left out: measured from two or more pictures taken from "
+                                                        "different camera poses (the object not moved)")] = None,
+    camera_id: Annotated[int | None, Form(description="Camera (default: the machine's first)")] = None,
+    grab: Annotated[bool, Form(description="Take the picture from the camera instead of uploads")] = False,
+    pictures: Annotated[list[UploadFile] | None, File(description="One or more pictures of the object on the "
+                                                                  "table, markers in view; more pictures (the object "
+                                                                  "turned between them) keep only the edges all show")] = None,
+    region_mm: Annotated[str | None, Form(description="[x_lo, x_hi, y_lo, y_hi] table box holding the object, mm "
+                                                      "(left out: found)")] = None,
+    datum_xy_mm: Annotated[str | None, Form(description="[x, y]: the datum on the top face in table coordinates of "
+                                                        "the first picture, mm (left out: none; set it later as a "
+                                                        "revision's T_obj_datum)")] = None,
+    description: Annotated[str, Form()] = "",
+) -> ModelPublic:
+    max_bytes = int(settings.max_upload_mb * 1e6)
+    data = [await _read_upload(f, max_bytes) for f in (pictures or []) if f.filename]
+    model = await run_in_threadpool(
+        photo_models.teach_photo_model, session, files, machine_id=machine_id, name=name, kind=kind,
+        height_mm=height_mm, pictures=data, camera_id=camera_id, grab=grab, region_mm=region_mm,
+        datum_xy_mm=datum_xy_mm, description=description, max_bytes=max_bytes)
+    audit(session, admin.label(), "model.create", model_id=model.id, kind=model.kind, name=model.name, source="photo")
+    return to_public(model, library.get_revision(session, model.id))
+
+
+@router.get("/{model_id}/photo.png", response_class=Response, summary="A photo model's teach picture (PNG): the "
+            "first picture seen on the top face's plane; pixel (u, v) is table x0 + u * mm_per_px, y0 + v * mm_per_px",
+            responses={200: {"content": {"image/png": {}}}})
+def get_teach_picture(session: SessionDep, files: FilesDep, model_id: int,
+                      revision: Annotated[int | None, Query(ge=1)] = None) -> Response:
+    rev = library.get_revision(session, model_id, revision)
+    return Response(photo_models.teach_picture(session, files, model_id, rev.revision), media_type="image/png",
+                    headers={"Cache-Control": "public, max-age=31536000, immutable"})
 
 
 @router.get("", response_model=Page[ModelPublic], summary="List models (filter by kind and name)")

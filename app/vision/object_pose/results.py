@@ -62,6 +62,7 @@ class ObjectPose:
     timings_ms: dict
     chain: tuple = ()          # what it rests on, nearest first, down to the table (set by the caller)
     covariance: np.ndarray | None = None   # 6x6 of (origin x, y, z mm, rotation vector rad), table axes
+    photo: dict | None = None  # a photo model's match (app/vision/photo_model.py): edge IoU, unexplained edges
 
     def __bool__(self) -> bool:
         return True
@@ -96,6 +97,7 @@ class ObjectPose:
             "datum_note": self.datum_note,
             "flags": list(self.flags),
             "timings_ms": dict(self.timings_ms),
+            **({} if self.photo is None else {"photo": dict(self.photo)}),
         }
 
 
