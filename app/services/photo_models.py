@@ -63,7 +63,7 @@ def table_view(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dict,
         raise Invalid(f"{what}: {tp.reason}", code="table_not_found")
     known = [(table, np.eye(4))] if table is not None else []
     ign = pm.known_edge_mask(image.shape[:2], K, dist, tp.T_cam_table, known, marker_labels_table(layout))
-    return pm.View(image, K, dist, tp.T_cam_table, ign)
+    return pm.View.of(image, K, dist, tp, ign)
 
 
 def teach_photo_model(session: Session, files: FileStore, *, machine_id: int, name: str, kind: str,

@@ -29,6 +29,7 @@ from app.store.db import session_scope
 from app.store.files import FileStore
 from app.store.models import Capture, Job, Setup, utcnow
 from app.vision import object_pose
+from app.vision.fiducials import locate_table
 from app.vision.image_header import ImageHeaderError, image_size
 from app.vision.localize import Candidate, draw_pose_overlay, localize, marker_labels_table, object_entry
 from app.vision.photo_model import PhotoModel, View, known_edge_mask, locate_near
@@ -552,7 +553,10 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
     if cand.photo is not None:      # a photo model: its search, near the operator's pose
         ign = known_edge_mask(image.shape[:2], K, dist, result.T_cam_table, [(table.prepare(), np.eye(4))],
                               marker_labels_table(layout or {}))
-        pose = locate_near(View(image, K, dist, result.T_cam_table, ign), cand.photo, cand.name, obj.pose)
+        # the table pose's covariance (the stored result keeps its sigmas only): the markers again
+        tp = locate_table(image, K, dist, layout or {}) if layout else None
+        view = View(image, K, dist, result.T_cam_table, ign, *((tp.covariance, tp.centroid_table_mm) if tp else ()))
+        pose = locate_near(view, cand.photo, cand.name, obj.pose)
     else:
         pose = object_pose.locate_object(image, K, dist, result.T_cam_table, cand.prepare(),
                                          start_poses=[obj.pose],

@@ -192,8 +192,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     labels = marker_labels_table(table_layout)
     photo_view = None
     if any(c.photo is not None for c in candidates):   # the picture as photo models see it
-        photo_view = View(image, K, dist, T_cam_table, known_edge_mask(image.shape[:2], K, dist, T_cam_table,
-                                                                       list(known), labels))
+        photo_view = View.of(image, K, dist, table, known_edge_mask(image.shape[:2], K, dist, T_cam_table,
+                                                                    list(known), labels))
     table_xy = _table_xy(table_model, table_layout)
     # --- objects: clamps first (they occlude the workpiece), then workpieces
     ordered = sorted(candidates, key=lambda c: 0 if c.kind == "clamp" else 1)

@@ -20,9 +20,11 @@ shadow and the table's own edges (all below the plane) do not line up between vi
   the turn about table z on a coarse rectification (distance transforms per edge direction,
   correlated with the template by :func:`cv2.filter2D`), then, for the best few starts, a
   least-squares fit (scipy) of the template's edges to subpixel edges found along their normals on a
-  fine rectification, its 1-sigma from the fit's Jacobian with the cluster-robust inflation for
-  errors shared along an edge (as the CAD engine's, :mod:`app.vision.object_pose.uncertainty`, with
-  its calibrated :data:`SIGMA_SCALE`), and the verification: supported share, edges inside the
+  fine rectification, its 1-sigma (:func:`_sigma`) from the fit's Jacobian with the cluster-robust
+  inflation for errors shared along an edge (as the CAD engine's, :mod:`app.vision.object_pose.uncertainty`,
+  with its calibrated :data:`SIGMA_SCALE`), the table-pose error of the search picture and of the
+  teach picture propagated through the fit (:func:`table_sensitivity`), and the view-dependent edge
+  bias of both pictures (:data:`EDGE_BIAS_PX`); and the verification: supported share, edges inside the
   outline that the model does not have, rival poses, distinctiveness. It answers with the engine's
   :class:`~app.vision.object_pose.results.ObjectPose` or :class:`ObjectFailure`.
 * :func:`recognise` chooses among several photo models at the same place; look-alikes (two plates
@@ -60,6 +62,13 @@ SUPPORT_MM = 0.4            # a template point is supported by an image edge thi
 EXPLAINED_MM = 0.7          # an image edge inside the outline this close to a template point is explained
 TEMPLATE_SPACING_MM = 0.5   # one template point per this square
 CLUSTER_MM = 10.0           # template points in one such square share their errors (sigma's clusters)
+# Edge bias (camera px) common to a picture's whole outline: where a top face's edge is found depends
+# on the view (blur mixing the side wall or the table below into the edge's profile, the perspective of
+# the rounded corner), so the template of the teach picture and the edges of a search picture are both
+# displaced by a fraction of a camera pixel, the same way all along the outline (it does not average
+# out over the edges). Its size is the one constant calibrated for photo models: fitted on the first
+# half of benchmarks/photo_model.py's placements (BENCHMARKS.md#photo-model), checked on the second.
+EDGE_BIAS_PX = 0.054
 
 
 # ------------------------------------------------------------------------------------------ the plane grid
@@ -252,8 +261,16 @@ class PhotoModel:
     T_table_obj_teach : where the object lay when taught (4x4, mm); teach_grid : the stored teach
     picture's :class:`PlaneGrid` (so a click on it gives table, then obj coordinates)
     n_views : pictures that agreed on the edges
-    teach_cov : 3x3 covariance (x mm, y mm, theta rad) of the template's own placement, from the fit of
-        the template to its first picture: every later pose inherits it
+    teach_cov : 3x3 covariance (x mm, y mm, theta rad; obj axes) of the template's own placement, from
+        the fit of the template to its first picture: every later pose inherits it
+    teach_table_cov : 3x3 (obj axes, as ``teach_cov``) of where the obj frame lies on the object because
+        of the first picture's table-pose error (the markers put the plane a little off, and the template
+        with it): propagated from that picture's table covariance; every later pose inherits it. None
+        (a model taught before it was kept): :func:`locate` takes the search picture's own table term
+        in its stead
+    teach_mm_per_px : size (mm) of one camera pixel of the first picture on the top face at the obj
+        origin: the template's edge bias (:data:`EDGE_BIAS_PX`) is that many mm. None (an older model):
+        the search picture's
     """
 
     points_mm: np.ndarray
@@ -267,6 +284,8 @@ class PhotoModel:
     teach_grid: PlaneGrid | None = None
     n_views: int = 1
     teach_cov: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    teach_table_cov: np.ndarray | None = None
+    teach_mm_per_px: float | None = None
 
     @property
     def radius_mm(self) -> float:
@@ -284,7 +303,9 @@ class PhotoModel:
                 "holes_mm": [np.round(h, 3).tolist() for h in self.holes_mm], "symmetry_deg": list(self.symmetry_deg),
                 "T_table_obj_teach": np.asarray(self.T_table_obj_teach).tolist(),
                 "teach_grid": None if self.teach_grid is None else self.teach_grid.to_dict(), "n_views": self.n_views,
-                "teach_cov": np.asarray(self.teach_cov).tolist()}
+                "teach_cov": np.asarray(self.teach_cov).tolist(),
+                "teach_table_cov": None if self.teach_table_cov is None else np.asarray(self.teach_table_cov).tolist(),
+                "teach_mm_per_px": self.teach_mm_per_px}
 
     @staticmethod
     def from_dict(d: dict) -> PhotoModel:
@@ -296,20 +317,35 @@ class PhotoModel:
                           symmetry_deg=tuple(float(s) for s in d.get("symmetry_deg", [])),
                           T_table_obj_teach=np.asarray(d.get("T_table_obj_teach", np.eye(4).tolist()), float),
                           teach_grid=PlaneGrid(**g) if g else None, n_views=int(d.get("n_views", 1)),
-                          teach_cov=np.asarray(d.get("teach_cov", np.zeros((3, 3)).tolist()), float))
+                          teach_cov=np.asarray(d.get("teach_cov", np.zeros((3, 3)).tolist()), float),
+                          teach_table_cov=(None if d.get("teach_table_cov") is None
+                                           else np.asarray(d["teach_table_cov"], float).reshape(3, 3)),
+                          teach_mm_per_px=None if d.get("teach_mm_per_px") is None else float(d["teach_mm_per_px"]))
 
 
 
 @dataclass(frozen=True)
 class View:
     """One teach or search picture with what locates it: image as taken, intrinsics, the table pose,
-    and an optional camera-image mask (uint8, > 0) of edges known to be something else."""
+    an optional camera-image mask (uint8, > 0) of edges known to be something else, and the table
+    pose's covariance (rotation about the table axes rad, shift along them mm at
+    ``table_centroid_mm``: :class:`~app.vision.fiducials.TablePose`'s convention). Without it the
+    table pose is taken as exact (synthetic tests with the true pose)."""
 
     image: np.ndarray
     K: np.ndarray
     dist: np.ndarray
     T_cam_table: np.ndarray
     ignore: np.ndarray | None = None
+    table_cov: np.ndarray | None = None          # (6, 6) of T_cam_table as locate_table's TablePose.covariance
+    table_centroid_mm: np.ndarray | None = None  # its centroid_table_mm (where that covariance's shift is)
+
+    @staticmethod
+    def of(image: np.ndarray, K: np.ndarray, dist, table, ignore: np.ndarray | None = None) -> View:
+        """A view located by :func:`app.vision.fiducials.locate_table`'s ``TablePose`` (its pose and its
+        covariance, so that the pose's error enters every sigma found in this picture)."""
+        return View(image, K, dist, table.T_cam_table, ignore, np.asarray(table.covariance, float),
+                    np.asarray(table.centroid_table_mm, float))
 
 
 class TeachError(ValueError):
@@ -472,7 +508,9 @@ def teach(views: list[View], height_mm: float, *, region_mm: tuple[float, float,
         model = _agree(model, views[1:], table_xy_mm, min_agree)
     model = _face(model)
     fit = _refine(v0, model, (float(c_mm[0]), float(c_mm[1]), 0.0))
-    model = PhotoModel(**{**model.__dict__, "teach_cov": _sigma(fit, model)[0]})
+    model = PhotoModel(**{**model.__dict__, "teach_cov": SIGMA_SCALE ** 2 * _fit_cov(fit, model),
+                          "teach_table_cov": _table_term(fit, model, v0),
+                          "teach_mm_per_px": camera_mm_per_px(v0.K, v0.T_cam_table, c_mm, h)})
     teach_pic = np.clip(rect0, 0, 255).astype(np.uint8)
     return _with_symmetry(model), teach_pic
 
@@ -790,17 +828,21 @@ def _pose(model: PhotoModel, x: float, y: float, t: float) -> np.ndarray:
     return make_pose(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), [x, y, 0.0])
 
 
-def _sigma(fit: _Fit, model: PhotoModel, teach_cov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Covariance (3x3 of x mm, y mm, theta rad) from the fit's Jacobian over the inliers: the classical
-    ``(J^T J)^-1 s^2`` plus the cluster-robust term for errors shared within a ``CLUSTER_MM`` square,
-    times the engine's calibrated :data:`SIGMA_SCALE` squared; and the 6x6 of (x, y, z mm, rotation
-    vector rad) about the obj origin with the table contact's height and tilt (as the CAD engine's)."""
+def _inliers(fit: _Fit) -> np.ndarray:
+    """The fit's robust inliers (residual within 3 MAD-sigmas, at least 0.1 mm): the points sigma uses."""
     r = fit.residual_mm
     scale = 1.4826 * float(np.nanmedian(np.abs(r))) + 1e-6
-    inl = fit.found & (np.abs(np.nan_to_num(r, nan=1e9)) < max(3 * scale, 0.1))
-    Ji, ri = fit.J[inl], r[inl]
-    A = Ji.T @ Ji
-    Ainv = np.linalg.pinv(A)
+    return fit.found & (np.abs(np.nan_to_num(r, nan=1e9)) < max(3 * scale, 0.1))
+
+
+def _fit_cov(fit: _Fit, model: PhotoModel) -> np.ndarray:
+    """Covariance (3x3 of x mm, y mm, theta rad; table axes, about the obj origin) of the fit's own
+    scatter, unscaled: the classical ``(J^T J)^-1 s^2`` plus the cluster-robust ("sandwich") term for
+    errors shared by neighbouring edge samples (same ``CLUSTER_MM`` square: one image edge, blur,
+    the rectification's interpolation), with the small-sample factor ``G / (G - 3)``."""
+    inl = _inliers(fit)
+    Ji, ri = fit.J[inl], fit.residual_mm[inl]
+    Ainv = np.linalg.pinv(Ji.T @ Ji)
     s2 = float(ri @ ri) / max(len(ri) - 3, 1)
     G = np.zeros((3, 3))
     cl = model.cluster[inl]
@@ -809,15 +851,89 @@ def _sigma(fit: _Fit, model: PhotoModel, teach_cov: np.ndarray | None = None) ->
         G += np.outer(gvec, gvec)
     n_cl = len(np.unique(cl))
     G *= n_cl / max(n_cl - 3, 1)
-    cov3 = (Ainv @ G @ Ainv + Ainv * s2) * SIGMA_SCALE ** 2
-    if teach_cov is not None:        # the template's own placement error rides along
-        cov3 = cov3 + teach_cov
+    return Ainv @ G @ Ainv + Ainv * s2
+
+
+def table_sensitivity(fit: _Fit, model: PhotoModel, view: View) -> np.ndarray:
+    """d(x mm, y mm, theta rad of the fit) / d(table-pose error): 3x6, the table error in
+    :class:`~app.vision.fiducials.TablePose`'s parameters (rotation vector about the table axes, rad;
+    shift along them, mm; both at ``view.table_centroid_mm``).
+
+    If the true table is the estimated one moved by (omega, s) about the centroid c, a point p of the
+    top face (z = h) lies in the estimated table frame at ``q = p + omega x (p - c) + s``; the
+    rectification follows the camera ray through q down (or up) to the plane z = h of the estimated
+    frame: ``q' = q - (q_z - h) (q - C) / (q_z - C_z)`` with C the camera centre (table frame). So every
+    template point seems displaced by ``dq'/d(omega, s)`` (the same error for all of them: it does not
+    average out over the edges), and the least-squares fit follows the displacement along the normals:
+    ``d pose = (J^T J)^-1 J^T (n . dq')`` over the fit's inliers."""
+    inl = _inliers(fit)
+    Q, N = _transform(model, fit.x, fit.y, fit.theta)
+    Q, N, Ji = Q[inl], N[inl], fit.J[inl]
+    h = float(model.height_mm)
+    P = np.column_stack([Q, np.full(len(Q), h)])
+    C = inv(np.asarray(view.T_cam_table, float))[:3, 3]
+    c = np.zeros(3) if view.table_centroid_mm is None else np.asarray(view.table_centroid_mm, float)
+    d = P - c
+    dq = np.zeros((len(P), 3, 6))              # dq / d(omega, s): -[p - c]x and I
+    dq[:, 0, 1], dq[:, 0, 2] = d[:, 2], -d[:, 1]
+    dq[:, 1, 0], dq[:, 1, 2] = -d[:, 2], d[:, 0]
+    dq[:, 2, 0], dq[:, 2, 1] = d[:, 1], -d[:, 0]
+    dq[:, :, 3:] = np.eye(3)
+    ray = (P - C) / (h - C[2])                 # along the ray per unit of height
+    dxy = dq[:, :2, :] - ray[:, :2, None] * dq[:, 2:3, :]
+    M = np.einsum("ij,ijk->ik", N, dxy)        # (n, 6): normal displacement per table-error component
+    return np.linalg.pinv(Ji.T @ Ji) @ Ji.T @ M
+
+
+def _table_term(fit: _Fit, model: PhotoModel, view: View) -> np.ndarray:
+    """3x3 covariance (x mm, y mm, theta rad; table axes) that the picture's table-pose error gives
+    the fit (zero when the view has no table covariance)."""
+    if view.table_cov is None:
+        return np.zeros((3, 3))
+    S = np.asarray(view.table_cov, float)
+    if not np.all(np.isfinite(S)):
+        return np.full((3, 3), np.inf)
+    B = table_sensitivity(fit, model, view)
+    return B @ S @ B.T
+
+
+def _turned(cov: np.ndarray, theta: float) -> np.ndarray:
+    """A 3x3 covariance of (x, y, theta) in obj axes seen in table axes (the obj turned by theta)."""
+    R = np.eye(3)
+    R[:2, :2] = _rot(theta)
+    return R @ np.asarray(cov, float) @ R.T
+
+
+def _sigma(fit: _Fit, model: PhotoModel, view: View) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Covariance of a located pose: (3x3 of x mm, y mm, theta rad in table axes about the obj
+    origin, the 6x6 of (x, y, z mm, rotation vector rad) with the table contact's height and tilt as
+    the CAD engine's, and the parts). The 3x3 is the sum of
+
+    * fit: :func:`_fit_cov` of this picture times the CAD engine's :data:`SIGMA_SCALE` squared, and the
+      model's ``teach_cov`` (the template's own placement in its first picture) turned into table axes;
+    * table: this picture's table-pose error propagated through the fit (:func:`table_sensitivity`),
+      and the first teach picture's (``teach_table_cov``, obj axes, turned; a model without it takes
+      this picture's term in its stead);
+    * edge bias: :data:`EDGE_BIAS_PX` camera pixels of the teach picture and of this one (mm on the top
+      face at the object), in x and in y: a shift of the whole outline that no fit can see.
+
+    Returns (cov3, cov6, parts) with parts {"fit", "table": 3x3 lists, "edge_bias_mm2": teach px^2 +
+    this px^2 (mm^2), "edge_bias_px"} so that a benchmark can refit the edge bias."""
+    fit_c = SIGMA_SCALE ** 2 * _fit_cov(fit, model) + _turned(model.teach_cov, fit.theta)
+    table = _table_term(fit, model, view)
+    teach_table = table if model.teach_table_cov is None else _turned(model.teach_table_cov, fit.theta)
+    here_px = camera_mm_per_px(view.K, view.T_cam_table, np.array([fit.x, fit.y]), model.height_mm)
+    teach_px = here_px if model.teach_mm_per_px is None else float(model.teach_mm_per_px)
+    px2 = teach_px ** 2 + here_px ** 2
+    cov3 = fit_c + table + teach_table + np.diag([1.0, 1.0, 0.0]) * EDGE_BIAS_PX ** 2 * px2
     cov6 = np.zeros((6, 6))
     idx = [0, 1, 5]
     cov6[np.ix_(idx, idx)] = cov3
     cov6[2, 2] = CONTACT_SIGMA_MM ** 2
     cov6[3, 3] = cov6[4, 4] = np.radians(CONTACT_SIGMA_DEG) ** 2
-    return cov3, cov6
+    parts = {"fit": fit_c.tolist(), "table": (table + teach_table).tolist(), "edge_bias_mm2": px2,
+             "edge_bias_px": EDGE_BIAS_PX}
+    return cov3, cov6, parts
 
 
 def _dt_coverage(fit: _Fit, model: PhotoModel, x: float, y: float, t: float, d: np.ndarray) -> float:
@@ -931,7 +1047,7 @@ def locate(view: View, model: PhotoModel, name: str, *,
         return ObjectFailure(name, "not_found", f"{name} not found: {missing:.0f} mm of its edges inside its outline "
                              "(a hole, a pocket) are not in the picture (another object, or that part hidden?)",
                              best.coverage, cands, timings)
-    _cov3, cov6 = _sigma(best, model, model.teach_cov)
+    _cov3, cov6, parts = _sigma(best, model, view)
     sd = np.sqrt(np.maximum(np.diag(cov6), 0.0))
     sigma = {"x_mm": float(sd[0]), "y_mm": float(sd[1]), "z_mm": float(sd[2]), "rx_deg": float(np.degrees(sd[3])),
              "ry_deg": float(np.degrees(sd[4])), "rz_deg": float(np.degrees(sd[5]))}
@@ -971,7 +1087,8 @@ def locate(view: View, model: PhotoModel, name: str, *,
         equivalent_poses=equivalent, datum_ambiguous=bool(equivalent), datum_note=note, flags=tuple(flags),
         timings_ms=timings, covariance=cov6,
         photo={"unexplained_mm": unexpl_mm, "longest_unexplained_mm": longest, "edge_length_mm": model.edge_length_mm,
-               "edge_iou": edge_iou(best.coverage, model, unexpl_mm), "cam_mm_per_px": cam_mm})
+               "edge_iou": edge_iou(best.coverage, model, unexpl_mm), "cam_mm_per_px": cam_mm,
+               "cov_parts": parts})
 
 
 def locate_near(view: View, model: PhotoModel, name: str, T_table_obj: np.ndarray,

@@ -54,6 +54,16 @@ def test_teach_from_pictures_then_locate_a_repeat_placement(client) -> None:
     assert err < 0.2 and abs((derr + 180) % 360 - 180) < 0.05, (err, derr)
     assert obj["uncertainty_pass"], obj["uncertainty_reason"]
     assert obj["sigma"]["x_mm"] < 0.1 and obj["sigma"]["rz_deg"] < 0.05
+    # the sigma carries the table pose's error (the markers' covariance) and the edge bias
+    parts = obj["photo"]["cov_parts"]
+    assert np.sqrt(parts["table"][0][0]) > 0.003 and parts["edge_bias_mm2"] > 0.05
+    # "refine from here" finds the same pose with the same sigma (the table's covariance again)
+    r = client.post(f"/api/v1/setups/{setup['id']}/refine", json={"object_index": 0})
+    assert r.status_code == 200, r.text
+    (ref,) = r.json()["result"]["objects"]
+    assert np.allclose(np.asarray(ref["T_table_obj"])[:2, 3], T[:2, 3], atol=0.02)
+    assert ref["sigma"]["x_mm"] == pytest.approx(obj["sigma"]["x_mm"], rel=0.1)
+    assert np.asarray(ref["photo"]["cov_parts"]["table"]) == pytest.approx(np.asarray(parts["table"]), rel=0.1)
     # the offset is the clicked datum: the plate's corner where the repeat put it, in machine coordinates
     off = setup["result"]["offset"]
     corner_rep = repeat.T_table_obj @ np.array([0.0, 0.0, 12.0, 1.0])
