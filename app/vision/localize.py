@@ -352,7 +352,13 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
     """The support chain: fixtures first (biggest first, each on the surfaces found so far, standing
     as modelled), then every workpiece on all support surfaces and over risers of unknown height,
     with the located fixtures' edges removed from the image and their bodies as occluders."""
-    from app.vision.support_chain import declared_surfaces, search_planes, support_surfaces, table_surface
+    from app.vision.object_pose.clamping import fixture_faces
+    from app.vision.support_chain import (
+        declared_surfaces,
+        search_planes,
+        support_surfaces,
+        table_surface,
+    )
 
     located: list[tuple[Candidate, Any]] = []
     not_found: list[dict] = []
@@ -380,11 +386,14 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
             pose = locate_photo(photo_view, cand.photo, cand.name, search_xy=photo_xy or table_xy,
                                 min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin)
         else:
+            # a part between located jaws is held by their faces (a fixture stands on its own)
+            faces = [] if fixture else [f for c, p in located
+                                        for f in fixture_faces(c.mesh, p.T_table_obj, c.name, p.covariance)]
             pose = object_pose.locate_object(
                 image, K, dist, T_cam_table, model, occluder_models=occ, table_extent_xy=table_xy,
                 min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin,
                 height_offsets_mm=tuple(planes), free_height=not fixture, known_models=kn, known_regions=labels,
-                known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
+                known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)), clamp_faces=faces,
                 **(FIXTURE_OPTIONS if fixture else {}))
         chain_text = ""
         if pose and fixture:
@@ -401,6 +410,8 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
             carrier = _carrier(seats if fixture else surfaces, pose, cand)
             pose = dataclasses.replace(pose, chain=carrier)
             chain_text = "rests on " + " on ".join(carrier)
+            if pose.held_by:
+                chain_text += ", held by " + " and ".join(dict.fromkeys(pose.held_by))
             if fixture:
                 derived = support_surfaces(cand.mesh, pose.T_table_obj, cand.name)
                 seats += derived
@@ -415,8 +426,8 @@ def _carrier(surfaces, pose, cand) -> tuple[str, ...]:
     """What the located object rests on, down to the table: its names, nearest first. A gap of more
     than 1 mm to the highest surface below is an unknown support (parallels or a block not in the
     library) of that height."""
-    from app.vision.support_chain import placed_height_above
     from app.geometry.transforms import transform_points
+    from app.vision.support_chain import placed_height_above
 
     zmin = float(transform_points(pose.T_table_obj, np.asarray(cand.mesh.vertices))[:, 2].min())
     s = placed_height_above(surfaces, pose.T_table_obj, cand.mesh, tol_mm=1.0)

@@ -61,6 +61,7 @@ class ObjectPose:
     flags: tuple
     timings_ms: dict
     chain: tuple = ()          # what it rests on, nearest first, down to the table (set by the caller)
+    held_by: tuple = ()        # fixtures whose faces hold it in the final fit (vise jaws: .clamping)
     covariance: np.ndarray | None = None   # 6x6 of (origin x, y, z mm, rotation vector rad), table axes
     photo: dict | None = None  # a photo model's match (app/vision/photo_model.py): edge IoU, unexplained edges
 
@@ -88,6 +89,7 @@ class ObjectPose:
             "tilt_sigma_deg": None if not np.isfinite(self.tilt_sigma_deg) else self.tilt_sigma_deg,
             "height_offset_mm": self.height_offset_mm,
             "chain": list(self.chain),
+            "held_by": list(self.held_by),
             "cov6": None if self.covariance is None else np.where(np.isfinite(self.covariance), self.covariance, 0.0).tolist(),
             "margin": None if not np.isfinite(self.margin) else self.margin,
             "runner_up_score": None if not np.isfinite(self.runner_up_score) else self.runner_up_score,

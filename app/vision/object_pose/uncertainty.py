@@ -9,8 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from app.geometry.model_edges import PreparedModel, project_points_px
 from app.geometry.transforms import inv, transform_points
+from app.vision.object_pose.clamping import side_offsets
 from app.vision.object_pose.pose_params import perturb
-
 
 # The least-squares sigma (cluster-robust over model edges, contact prior) still misses what is
 # shared between edges (blur, shading, the table pose). Fitted on the independent devset's first half
@@ -44,15 +44,18 @@ PRIOR_PX = 0.5
 
 
 def prior_offsets(T: np.ndarray, prior) -> np.ndarray:
-    """(dz / sigma_z, tilt_x / sigma_t, tilt_y / sigma_t) of ``T`` against the prior's resting pose.
+    """(dz / sigma_z, tilt_x / sigma_t, tilt_y / sigma_t, then one gap / sigma per side contact) of
+    ``T`` against the prior ``(T_rest, sigma_z_mm, sigma_tilt_rad, hull_obj[, side contacts])``.
 
     ``dz`` is the height of the part's lowest point (over ``hull_obj``, its convex hull's vertices,
     obj frame) above the lowest point at rest: a part tilted by a chip under one edge still touches
-    its support with the other, so its lowest point stays on the surface while its centre rises."""
-    T_rest, sz, st, hull_obj = prior
+    its support with the other, so its lowest point stays on the surface while its centre rises. A
+    side contact (:mod:`.clamping`: a vise jaw) holds the part's extreme point along its normal."""
+    T_rest, sz, st, hull_obj = prior[:4]
     dz = float(transform_points(T, hull_obj)[:, 2].min() - transform_points(T_rest, hull_obj)[:, 2].min())
     rv = Rotation.from_matrix(T[:3, :3] @ T_rest[:3, :3].T).as_rotvec()
-    return np.array([dz / sz, rv[0] / st, rv[1] / st])
+    sides = side_offsets(T, hull_obj, prior[4]) if len(prior) > 4 else np.zeros(0)
+    return np.concatenate([[dz / sz, rv[0] / st, rv[1] / st], sides])
 
 
 def hull_points(model: PreparedModel, max_n: int = 400) -> np.ndarray:
@@ -110,7 +113,7 @@ def covariance(info: dict, K, dist, T_cam_table, data_scale: float = 1.0) -> tup
     cov_f = (cov_cl + cov_iid) * data_scale ** 2   # the image's share, calibrated; the prior is physical
     prior = info.get("prior")
     if prior is not None:         # prior information on height and tilt (MAP): add it, invert back
-        Jp = np.zeros((3, 6))
+        Jp = np.zeros((len(prior_offsets(T0, prior)), 6))
         for k in free:
             h = 1e-3 if k < 3 else 1e-6
             dp = np.zeros(6)

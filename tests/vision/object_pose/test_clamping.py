@@ -1,0 +1,84 @@
+"""Parts held against located fixture faces (app.vision.object_pose.clamping) and the starts kept
+for the fine fit (app.vision.object_pose.locate._distinct)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import trimesh
+
+from app.geometry.transforms import make_pose
+from app.vision.object_pose.clamping import fixture_faces, side_contacts, side_offsets
+
+
+def _box(lo, hi) -> trimesh.Trimesh:
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    return trimesh.creation.box(hi - lo, transform=make_pose(None, 0.5 * (lo + hi)))
+
+
+JAW = _box((-20.0, -60.0, 70.0), (0.0, 60.0, 110.0))      # fixed jaw: clamping face x = 0, facing +x
+
+
+def _contacts(part: trimesh.Trimesh):
+    faces = fixture_faces(JAW, np.eye(4), "vise")
+    return side_contacts(faces, np.asarray(part.convex_hull.vertices), np.eye(4), contact_sigma_mm=0.15)
+
+
+def test_a_part_face_against_a_jaw_is_held_one_away_or_above_it_is_not():
+    held = _contacts(_box((0.8, -30.0, 75.0), (50.8, 30.0, 105.0)))
+    assert len(held) == 1
+    c = held[0]
+    np.testing.assert_allclose(c.n, [1.0, 0.0, 0.0], atol=1e-9)
+    assert c.d == pytest.approx(0.0, abs=1e-9) and c.gap_mm == pytest.approx(0.8)
+    assert c.sigma_mm == pytest.approx(0.15)
+    assert _contacts(_box((10.0, -30.0, 75.0), (60.0, 30.0, 105.0))) == []     # 10 mm away: free
+    assert _contacts(_box((0.5, -30.0, 115.0), (50.5, 30.0, 145.0))) == []     # above the jaw's top
+    assert _contacts(_box((0.5, 70.0, 75.0), (50.5, 130.0, 105.0))) == []      # beside the jaw
+
+
+def test_a_round_boss_against_a_jaw_is_held_too():
+    """The devset's idler riser touches the fixed jaw with a boss, not a flat side."""
+    boss = trimesh.creation.cylinder(radius=15.0, height=30.0, sections=64, transform=make_pose(None, (15.3, 0.0, 90.0)))
+    held = _contacts(boss)
+    assert len(held) == 1 and held[0].gap_mm == pytest.approx(0.3, abs=0.02)
+    hull = np.asarray(boss.convex_hull.vertices)
+    touching = make_pose(None, (-held[0].gap_mm, 0.0, 0.0))
+    np.testing.assert_allclose(side_offsets(touching, hull, held), [0.0], atol=1e-9)
+    np.testing.assert_allclose(side_offsets(np.eye(4), hull, held), [0.3 / 0.15], atol=0.2)
+
+
+def test_the_fixtures_own_pose_uncertainty_widens_the_contact():
+    cov = np.zeros((6, 6))
+    cov[0, 0] = 0.2 ** 2                     # the jaw's pose is known to 0.2 mm in x only
+    faces = fixture_faces(JAW, np.eye(4), "vise", cov)
+    x_face = next(f for f in faces if f.n[0] > 0.99)
+    y_face = next(f for f in faces if abs(f.n[1]) > 0.99)
+    assert x_face.var_mm2 == pytest.approx(0.04) and y_face.var_mm2 == pytest.approx(0.0)
+    held = side_contacts(faces, np.asarray(_box((0.5, -30.0, 75.0), (50.5, 30.0, 105.0)).vertices), np.eye(4), 0.15)
+    assert held[0].sigma_mm == pytest.approx(np.hypot(0.15, 0.2))
+    cov[1, 1] = np.nan                       # y unknown: the y faces hold nothing, the x faces still do
+    faces = fixture_faces(JAW, np.eye(4), "vise", cov)
+    assert faces and all(abs(f.n[1]) < 0.5 for f in faces)
+
+
+def test_each_stance_and_a_known_surface_keep_their_best_start():
+    """Aligned scores are not comparable between stances nor between a known surface and a free
+    height: the best start of each reaches the fine fit when it scores at least 3/4 of the best."""
+    from app.geometry.model_edges import prepare_model
+    from app.vision.object_pose.locate import RESERVE_SHARE, _distinct
+    from app.vision.object_pose.search import Hyp
+
+    model = prepare_model(trimesh.creation.box((60.0, 40.0, 20.0)), name="block")
+    ctx = SimpleNamespace(model=model, pos_tol=2.0, opts=SimpleNamespace(n_refine=2),
+                          on_known_surface=lambda T: abs(T[2, 3] - 10.0) < 0.5)
+
+    def hyp(state, x, z, score):
+        return Hyp(state=state, T_table_obj=make_pose(None, (x, 0.0, z)), score=score)
+
+    floating = [hyp(1, 300.0 + 50 * k, 110.0, 0.72 - 0.01 * k) for k in range(3)]   # a tool, 100 mm up
+    upright = hyp(0, 0.0, 10.0, 0.60)            # the part on the table
+    weak = hyp(2, -300.0, 10.0, RESERVE_SHARE * 0.72 - 0.01)
+    picked = [id(h) for h in _distinct(ctx, floating + [upright, weak])]
+    assert picked == [id(floating[0]), id(floating[1]), id(upright)]
