@@ -9,6 +9,9 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ORDER = ["table_pose", "object_pose", "calibration", "mesh_pipeline", "sheet", "rotary", "planning"]
+#: topics measured by a test on the controller sim rather than a script of their own
+SOURCES = {"rotary_table": "tests/e2e/test_rotary_table_sim.py` (LinuxCNC XYZC sim)",
+           "detour_subroutine": "tests/planning/test_detour_sim.py` (the LinuxCNC sim)"}
 
 HEADER = """# Benchmarks
 
@@ -26,7 +29,8 @@ Regenerate this file after re-running a benchmark: `.venv/bin/python benchmarks/
 def main() -> None:
     files = [HERE / f"{k}.md" for k in ORDER if (HERE / f"{k}.md").exists()]
     files += sorted(p for p in HERE.glob("*.md") if p not in files)
-    index = "\n".join(f"* [{p.stem}](#{p.stem.replace('_', '-')}) — `benchmarks/{p.stem}.py`" for p in files)
+    index = "\n".join(f"* [{p.stem}](#{p.stem.replace('_', '-')}) — `{SOURCES.get(p.stem, f'benchmarks/{p.stem}.py`')}"
+                      for p in files)
     parts = [HEADER, "## Contents\n\n", index, "\n"]
     for p in files:
         body = p.read_text().strip()
