@@ -364,6 +364,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
     not_found: list[dict] = []
     surfaces = [table_surface()]         # where workpieces may rest (declared surfaces where given)
     seats = [table_surface()]            # where fixtures may stand (every upward face: a jaw rides a rail)
+    jaw_faces: list = []                 # vertical faces of the located fixtures (clamping.fixture_faces)
     # everything in the chain stands on the table: search its top, not the floor around it
     table_xy = None
     if known:
@@ -386,14 +387,12 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
             pose = locate_photo(photo_view, cand.photo, cand.name, search_xy=photo_xy or table_xy,
                                 min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin)
         else:
-            # a part between located jaws is held by their faces (a fixture stands on its own)
-            faces = [] if fixture else [f for c, p in located
-                                        for f in fixture_faces(c.mesh, p.T_table_obj, c.name, p.covariance)]
             pose = object_pose.locate_object(
                 image, K, dist, T_cam_table, model, occluder_models=occ, table_extent_xy=table_xy,
                 min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin,
                 height_offsets_mm=tuple(planes), free_height=not fixture, known_models=kn, known_regions=labels,
-                known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)), clamp_faces=faces,
+                known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
+                clamp_faces=() if fixture else tuple(jaw_faces),    # a fixture stands on its own
                 **(FIXTURE_OPTIONS if fixture else {}))
         chain_text = ""
         if pose and fixture:
@@ -415,6 +414,8 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
             if fixture:
                 derived = support_surfaces(cand.mesh, pose.T_table_obj, cand.name)
                 seats += derived
+                # a part between its jaws will be held by its faces
+                jaw_faces += fixture_faces(cand.mesh, pose.T_table_obj, cand.name, pose.covariance)
                 surfaces += (derived if cand.support_surfaces is None
                              else declared_surfaces(cand.support_surfaces, pose.T_table_obj, cand.name))
         _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table,

@@ -648,7 +648,7 @@ def measure_height(views: list[View], region_mm: tuple[float, float, float, floa
         for v in views[:2]:
             rect, valid, ign = rectify(v.image, v.K, v.dist, v.T_cam_table, g, v.ignore)
             es.append(plane_edges(rect, valid, ign, smooth_px=1.0))
-        dmap = cv2.distanceTransform(np.where(es[1].canny > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
+        dmap = _edge_distance(es[1].canny)
         ij = np.clip(np.rint(es[0].uv).astype(int), 0, [g.width - 1, g.height - 1])
         if len(ij) < 20:
             return 0.0, 1.0
@@ -668,6 +668,11 @@ def measure_height(views: list[View], region_mm: tuple[float, float, float, floa
 
 
 # ------------------------------------------------------------------------------------------ locating
+def _edge_distance(canny: np.ndarray) -> np.ndarray:
+    """Distance (grid px) of every pixel to the nearest edge pixel of a Canny map."""
+    return cv2.distanceTransform(np.where(canny > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
+
+
 def _rot(t: float) -> np.ndarray:
     return np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
 
@@ -687,7 +692,7 @@ class _Fit:
     @property
     def edge_dt(self) -> np.ndarray:
         """Distance (grid px) of every grid pixel to the nearest image edge."""
-        return cv2.distanceTransform(np.where(self.edges.canny > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
+        return _edge_distance(self.edges.canny)
 
 
 def _coarse_starts(view: View, model: PhotoModel, search_xy: tuple[float, float, float, float],

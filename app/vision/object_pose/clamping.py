@@ -118,10 +118,12 @@ def side_contacts(faces: list[Face], hull_obj: np.ndarray, T_table_obj: np.ndarr
     return list(best.values())
 
 
+def side_gaps(P_table: np.ndarray, contacts) -> np.ndarray:
+    """(gap / sigma) of each contact for the part's hull points ``P_table`` (table frame): its extreme
+    point along the face normal against the face (0 when touching)."""
+    return np.array([(float((P_table @ c.n).min()) - c.d) / c.sigma_mm for c in contacts])
+
+
 def side_offsets(T: np.ndarray, hull_obj: np.ndarray, contacts) -> np.ndarray:
-    """(gap / sigma) of each contact for the part at ``T``: its extreme hull point along the face
-    normal against the face (0 when touching)."""
-    if not contacts:
-        return np.zeros(0)
-    P = transform_points(T, hull_obj)
-    return np.array([(float((P @ c.n).min()) - c.d) / c.sigma_mm for c in contacts])
+    """:func:`side_gaps` of the hull ``hull_obj`` (obj frame) placed at ``T``."""
+    return side_gaps(transform_points(T, hull_obj), contacts) if contacts else np.zeros(0)

@@ -170,6 +170,7 @@ class LocateContext:
     clamp_faces: tuple = ()
     px_per_mm: float = 1.0
     _sub_fine: np.ndarray | None = field(default=None, repr=False)
+    _unexplained: dict = field(default_factory=dict, repr=False)
 
     @property
     def pos_tol(self) -> float:
@@ -194,6 +195,13 @@ class LocateContext:
     def refine(self, T0, free, radii, **kw):
         return refine_pose(self.eimg, self.model, T0, self.T_cam_table, self.K, self.dist, self.occluders_cam,
                            self.sub_fine, free=free, radii=radii, min_contrast=self.min_contrast, **kw)
+
+    def unexplained(self, T: np.ndarray) -> float:
+        """:func:`unexplained_edges` of the part at ``T_table_obj``, once per pose."""
+        key = np.asarray(T, float).tobytes()
+        if key not in self._unexplained:
+            self._unexplained[key] = unexplained_edges(self.eimg, self.model, self.T_cam_table @ T, self.K, self.dist)
+        return self._unexplained[key]
 
     def support(self, T):
         return edge_support(self.eimg, self.model, T, self.T_cam_table, self.K, self.dist, self.occluders_cam,
@@ -373,9 +381,7 @@ def _choose(ctx: LocateContext, fits: list[Fit]) -> tuple[Fit, list[Fit], list]:
                  and r.support_px >= 0.8 * best.support_px and np.linalg.norm(
                      transform_points(r.T, model.center_obj[None])[0] - c_best) < 0.25 * model.diameter_mm]
         if close:
-            def unexplained(r):
-                return unexplained_edges(ctx.eimg, model, ctx.T_cam_table @ r.T, ctx.K, ctx.dist)
-            u_best, clearer = unexplained(best), min(((unexplained(r), r) for r in close), key=lambda t: t[0])
+            u_best, clearer = ctx.unexplained(best.T), min(((ctx.unexplained(r.T), r) for r in close), key=lambda t: t[0])
             if clearer[0] < u_best - 0.1:
                 best = clearer[1]
                 fits.sort(key=lambda r: (r is not best, -r.key))
@@ -418,9 +424,8 @@ def _rivals(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Rivals:
     if rivals and best.converged:
         # nor is a pose that leaves clearly more of the image inside its outline unexplained (the
         # block upside down: same outline, its pocket's edges in the picture belong to nothing)
-        u_best = unexplained_edges(ctx.eimg, model, ctx.T_cam_table @ best.T, ctx.K, ctx.dist)
-        rivals = [r for r in rivals
-                  if unexplained_edges(ctx.eimg, model, ctx.T_cam_table @ r.T, ctx.K, ctx.dist) < u_best + 0.1]
+        u_best = ctx.unexplained(best.T)
+        rivals = [r for r in rivals if ctx.unexplained(r.T) < u_best + 0.1]
     return Rivals(flips=flips, flips_open=[r for r in flips if best.score - r.score < 2 * min_margin],
                   rivals=rivals, runner=runner, margin=best.score - runner if others else float("nan"),
                   rival_margin=best.score - max((r.score for r in rivals), default=float("nan")),
@@ -603,7 +608,7 @@ def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, di
         score=float(best.score), inlier_edge_fraction=min(1.0, float(inl.sum()) / max(n_vis, 1)), residual_px=rms,
         visible_fraction=float(vis_frac), n_edge_samples=int(info["n_used"]), sigma=sigma, tilt_deg=tilt,
         tilt_sigma_deg=tilt_sigma, T_table_obj_6dof=T6,
-        unexplained_fraction=unexplained_edges(ctx.eimg, model, ctx.T_cam_table @ T_table_obj, K, dist),
+        unexplained_fraction=ctx.unexplained(T_table_obj),
         supported_edge_px=best.support_px, uncertainty_ok=uncertainty_ok, height_offset_mm=height,
         held_by=tuple(c.name for c in cf.prior[4]) if len(cf.prior) > 4 and not cf.conflict else (),
         margin=float(rv.margin), runner_up_score=float(rv.runner),

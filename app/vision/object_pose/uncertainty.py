@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from app.geometry.model_edges import PreparedModel, project_points_px
 from app.geometry.transforms import inv, transform_points
-from app.vision.object_pose.clamping import side_offsets
+from app.vision.object_pose.clamping import side_gaps
 from app.vision.object_pose.pose_params import perturb
 
 # The least-squares sigma (cluster-robust over model edges, contact prior) still misses what is
@@ -52,9 +52,10 @@ def prior_offsets(T: np.ndarray, prior) -> np.ndarray:
     its support with the other, so its lowest point stays on the surface while its centre rises. A
     side contact (:mod:`.clamping`: a vise jaw) holds the part's extreme point along its normal."""
     T_rest, sz, st, hull_obj = prior[:4]
-    dz = float(transform_points(T, hull_obj)[:, 2].min() - transform_points(T_rest, hull_obj)[:, 2].min())
+    P = transform_points(T, hull_obj)
+    dz = float(P[:, 2].min() - transform_points(T_rest, hull_obj)[:, 2].min())
     rv = Rotation.from_matrix(T[:3, :3] @ T_rest[:3, :3].T).as_rotvec()
-    sides = side_offsets(T, hull_obj, prior[4]) if len(prior) > 4 else np.zeros(0)
+    sides = side_gaps(P, prior[4]) if len(prior) > 4 else np.zeros(0)
     return np.concatenate([[dz / sz, rv[0] / st, rv[1] / st], sides])
 
 
