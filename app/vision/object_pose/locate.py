@@ -274,6 +274,7 @@ def _find(ctx: LocateContext, start_poses, table_extent_xy):
                                                    table_extent_xy[2] - half, table_extent_xy[3] + half)
     return find_starts(ctx.eimg, ctx.K, ctx.dist, ctx.T_cam_table, ctx.model, height_offsets_mm=o.height_offsets_mm,
                        resting_states=o.resting_states, n_starts=o.n_starts, n_planar=o.n_planar,
+                       n_coarse=o.n_coarse, coarse_step_max_mm=o.coarse_step_max_mm,
                        max_edges=o.max_edges, rng=np.random.default_rng(o.seed), timings=ctx.timings,
                        table_extent_xy=extent)
 

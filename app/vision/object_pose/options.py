@@ -32,6 +32,8 @@ class LocateOptions:
     n_starts : search peaks per resting state and height; ``n_planar`` : best of those aligned in the
         table plane; ``n_refine`` : distinct aligned starts refined and verified
     settle_starts : search each start once more densely around itself before the fine fit
+    n_coarse : coarse cells of the plane search re-scored in the image (per resting state and height)
+    coarse_step_max_mm : the plane search's coarse cell is the part's size / 18, at most this (mm)
     max_edges : image edge pixels cast onto the search planes (a random subset beyond)
     sigma_scale : factor on the image's share of the covariance (calibrated on held-out scenes)
     seed : of the edge subset (results are reproducible)
@@ -54,6 +56,8 @@ class LocateOptions:
     n_planar: int = 10
     n_refine: int = 3
     settle_starts: bool = False
+    n_coarse: int = 40
+    coarse_step_max_mm: float = 16.0
     max_edges: int = 60000
     sigma_scale: float = SIGMA_SCALE
     seed: int = 0

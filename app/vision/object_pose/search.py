@@ -140,14 +140,16 @@ def edge_faces_of(model: PreparedModel, T_rest_obj: np.ndarray, sel: np.ndarray)
 
 def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, extent_xy,
                   n_peaks: int, *, px_mm: float, image_score, max_template: int = 400, n_coarse: int = 40,
-                  cache: dict | None = None, image_score_wide=None, image_score_mid=None) -> list[Hyp]:
+                  cache: dict | None = None, image_score_wide=None, image_score_mid=None,
+                  coarse_step_max_mm: float = 16.0) -> list[Hyp]:
     """Exhaustive oriented chamfer matching of the model's horizontal edges on the table planes.
 
     The image's edge pixels are cast onto each horizontal plane that carries model edges (height
     levels of the resting state); on such a plane the model's edges form a rigid template, so the
     score of (x, y, theta) is a correlation of the template with the plane's edge support (truncated
     distance transform, one map per edge direction). Coarse: every (x, y, theta) on a grid of about
-    diameter/18 (correlations summed in the frequency domain, one inverse FFT per theta); fine: the
+    diameter/18, at most ``coarse_step_max_mm`` (correlations summed in the frequency domain, one
+    inverse FFT per theta); fine: the
     best ``n_coarse`` cells re-scored twice on half-step grids in the image itself (``image_score``:
     exact perspective, full-resolution edges and their directions). ``px_mm`` is the plane footprint
     of one image pixel. Returns the best distinct (x, y, theta) as starts.
@@ -186,7 +188,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         return P[sel, :2], np.arctan2(D[sel, 1], D[sel, 0]), P[sel, 2] + height_mm, w, sel
 
     # ---- coarse: correlation per theta
-    b = float(np.clip(diam / 18.0, 1.5, 16.0))
+    b = float(np.clip(diam / 18.0, 1.5, max(1.5, coarse_step_max_mm)))
     b = max(b, max(x1 - x0, y1 - y0) / 250.0)
     nx = int(np.ceil((x1 - x0) / b)) + 1
     ny = int(np.ceil((y1 - y0) / b)) + 1
@@ -369,8 +371,9 @@ def _intersect(a, b):
 
 
 def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, height_offsets_mm=(0.0,),
-            resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10, max_edges: int = 60000, rng=None,
-            timings: dict | None = None, table_extent_xy=None):
+            resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10,
+            max_edges: int = 60000, rng=None, timings: dict | None = None, table_extent_xy=None,
+            n_coarse: int = 40, coarse_step_max_mm: float = 16.0):
     """Stages 1 and 2: starts from the plane search, aligned in the table plane, best first.
     ``table_extent_xy`` (x0, x1, y0, y1 mm): where the part's centre can be (the table and a margin);
     the floor and the machine's walls in the background are not searched.
@@ -378,6 +381,7 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
     timings = {} if timings is None else timings
     memo = ("search", id(model), T_cam_table.tobytes(), tuple(height_offsets_mm),
             None if resting_states is None else tuple(resting_states), min_state_probability, n_starts, n_planar,
+            n_coarse, coarse_step_max_mm,
             None if table_extent_xy is None else tuple(table_extent_xy))
     if memo in eimg.cache:              # same image, model and table pose: reuse (recognition)
         timings.setdefault("search", 0.0)
@@ -414,7 +418,7 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
         states = list(resting_states)
     hyps: list[Hyp] = []
     scorer = _image_scorer(eimg, K, dist, T_cam_table)
-    b_px = float(np.clip(model.diameter_mm / 18.0, 1.5, 16.0)) / max(px_mm, 1e-9)
+    b_px = float(np.clip(model.diameter_mm / 18.0, 1.5, max(1.5, coarse_step_max_mm))) / max(px_mm, 1e-9)
     scorer_wide = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(1.2 * b_px, 3.0, 20.0)))
     scorer_mid = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(0.6 * b_px, 2.5, 10.0)))
     planes = []
@@ -425,9 +429,9 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
             planes.append((float(h), ext))
     for st in states:
         for h, ext in planes:
-            hyps += _plane_search(model, st, h, rays, C, ext, n_starts, px_mm=px_mm,
+            hyps += _plane_search(model, st, h, rays, C, ext, n_starts, px_mm=px_mm, n_coarse=n_coarse,
                                   image_score=scorer, cache=eimg.cache, image_score_wide=scorer_wide,
-                                  image_score_mid=scorer_mid)
+                                  image_score_mid=scorer_mid, coarse_step_max_mm=coarse_step_max_mm)
     timings["search"] = (time.perf_counter() - t) * 1e3
     if not hyps:
         return "the search produced no pose on the table"
