@@ -1,4 +1,4 @@
-"""Photo models (app/vision/photo_model.py) on generated scenes: teach a plate from two pictures, locate
+"""Photo models (app/vision/photo_model/) on generated scenes: teach a plate from two pictures, locate
 repeat placements (other x, y, turn and camera pose) and tell two look-alike plates apart.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/photo_model.py [--scenes 6] [--seed 0]

@@ -460,7 +460,7 @@ def example_library() -> list[ExampleModel]:
 
 
 def taught_prism(outline_xy: np.ndarray, holes_xy: list[np.ndarray], height_mm: float) -> trimesh.Trimesh:
-    """The 2.5-D body of a photo model (app/vision/photo_model.py): its top face's outline (N, 2) with
+    """The 2.5-D body of a photo model (app/vision/photo_model/): its top face's outline (N, 2) with
     its holes, in its obj frame (mm), extruded from the table (z = 0) to ``height_mm``. Holes that do
     not lie inside the outline are left out; an outline that does not close a valid area is made valid
     first (``buffer(0)``)."""

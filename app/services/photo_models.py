@@ -1,6 +1,6 @@
 """Teach a library model from the machine's camera (issue 16): pictures -> table pose -> photo model.
 
-The maths is in app/vision/photo_model.py (rectify, teach, measure_height, locate); this module checks
+The maths is in app/vision/photo_model/ (rectify, teach, measure_height, locate); this module checks
 the request (4xx with the reason), locates the table in every picture with the machine's table
 model, stores the pictures, the teach picture and the template, and makes a library model of kind
 ``workpiece`` or ``clamp`` with ``source = "photo"``: its mesh (for the 3D view, the overlay and the

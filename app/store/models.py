@@ -75,7 +75,7 @@ class ModelRevision(SQLModel, table=True):
     support_surfaces: list[dict] | None = json_field()
     summary: dict = json_field(default_factory=dict, nullable=False)
     resting_poses: list[dict] = json_field(default_factory=list, nullable=False)
-    # a photo model: its edge template, pictures and teach picture (app/vision/photo_model.py); None: CAD
+    # a photo model: its edge template, pictures and teach picture (app/vision/photo_model/); None: CAD
     photo: dict | None = json_field()
     note: str = Field(default="", max_length=500)
     created_at: datetime = Field(default_factory=utcnow)

@@ -1,4 +1,4 @@
-"""Generated pictures for photo models (app/vision/photo_model.py): plates with holes on the T-slot
+"""Generated pictures for photo models (app/vision/photo_model/): plates with holes on the T-slot
 table, a teach picture and repeat placements at other x, y, turns and camera poses, with the truth."""
 
 from __future__ import annotations

@@ -60,7 +60,7 @@ class Candidate:
     # fixtures: the plane patches a part can rest on, in the model frame ({"name", "z_mm",
     # "outline_xy"}); None: derived from the mesh's upward faces
     support_surfaces: list[dict] | None = None
-    # a model taught from pictures (app/vision/photo_model.py): located by its edge template in the
+    # a model taught from pictures (app/vision/photo_model/): located by its edge template in the
     # table plane instead of the CAD search; ``mesh`` is then its outline extruded to its height
     photo: PhotoModel | None = None
 

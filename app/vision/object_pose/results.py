@@ -63,7 +63,7 @@ class ObjectPose:
     chain: tuple = ()          # what it rests on, nearest first, down to the table (set by the caller)
     held_by: tuple = ()        # fixtures whose faces hold it in the final fit (vise jaws: .clamping)
     covariance: np.ndarray | None = None   # 6x6 of (origin x, y, z mm, rotation vector rad), table axes
-    photo: dict | None = None  # a photo model's match (app/vision/photo_model.py): edge IoU, unexplained edges
+    photo: dict | None = None  # a photo model's match (app/vision/photo_model/): edge IoU, unexplained edges
 
     def __bool__(self) -> bool:
         return True
