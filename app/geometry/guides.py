@@ -35,9 +35,14 @@ from app.geometry.transforms import (
 #: longest travel a guide may declare (mm): a camera-located slide longer than the largest table
 #: is a unit mistake, and it bounds the number of search starts
 MAX_TRAVEL_SPAN_MM = 2000.0
-#: spacing of the search starts along a guide (mm); each start is searched locally within
-#: +-30 mm and +-8 deg (``object_pose.search.starts_from_poses``), so neighbours overlap
+#: spacing of the search starts along a guide (mm) and how far around each one it is searched
+#: (``object_pose.search.starts_from_poses``: x, y within +-capture mm, rotation within +-capture
+#: deg): the windows overlap (capture > half the spacing) and reach across the guide past
+#: OFF_GUIDE_MM and past the carrier's own rotation error. Not the default +-30 mm, 8 deg of an
+#: operator's rough pose: the grid costs the square of the capture (a vise's jaw: 70 s -> ~5 s)
 GUIDE_STEP_MM = 20.0
+GUIDE_CAPTURE_MM = 12.0
+GUIDE_CAPTURE_DEG = 3.0
 #: a located fixture this far off its guide (mm across the axis or beyond its travel, deg of
 #: rotation) has left it: the local search slid onto other edges
 OFF_GUIDE_MM = 3.0

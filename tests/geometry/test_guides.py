@@ -3,20 +3,21 @@ along it and how far a pose is from it."""
 
 from __future__ import annotations
 
-import inspect
-
 import numpy as np
 import pytest
 
 from app.geometry.guides import (
+    GUIDE_CAPTURE_DEG,
+    GUIDE_CAPTURE_MM,
     GUIDE_STEP_MM,
+    OFF_GUIDE_DEG,
+    OFF_GUIDE_MM,
     guide_deviation,
     guide_start_poses,
     parse_guide,
     pose_at_travel,
 )
 from app.geometry.transforms import make_pose
-from app.vision.object_pose.search import starts_from_poses
 
 T70 = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 70], [0, 0, 0, 1]]
 JAW = {"carrier": "vise_body", "T_carrier_obj": T70, "axis": [1, 0, 0], "travel_mm": [-95, 100]}
@@ -79,8 +80,9 @@ def test_starts_cover_the_travel_at_most_a_step_apart_on_the_carrier():
         # the jaw's origin moves along the carrier's x axis, turned 30 deg in the table
         assert np.allclose(T[:3, 3], [400, 200, 70] + s * np.array([np.cos(np.pi / 6), np.sin(np.pi / 6), 0]))
     assert len(guide_start_poses(JAW, T_table_carrier, step_mm=100.0)) == 3
-    # each start is searched locally: neighbours' windows overlap (the capture reaches half a step)
-    assert inspect.signature(starts_from_poses).parameters["capture_mm"].default >= GUIDE_STEP_MM / 2
+    # each start is searched locally: neighbours' windows overlap (the capture reaches past half a
+    # step) and reach across the guide further than a pose may lie off it
+    assert GUIDE_STEP_MM / 2 < GUIDE_CAPTURE_MM and OFF_GUIDE_MM < GUIDE_CAPTURE_MM and OFF_GUIDE_DEG < GUIDE_CAPTURE_DEG
 
 
 def test_deviation_from_the_guide():
