@@ -27,6 +27,10 @@ class RevisionPublic(BaseModel):
         default=None, description="Fixtures: the plane patches a part can rest on, in the model frame (mm): "
                                   '[{"name", "z_mm", "outline_xy": [[x, y], ...]}]; null: derived from the '
                                   "mesh's upward faces; []: carries nothing.")
+    guide: dict[str, Any] | None = Field(
+        default=None, description="Fixtures: what carries the model and how it moves there, in the carrier's "
+                                  'frame (mm): {"carrier": key or name, "T_carrier_obj": 4x4 at travel 0, "axis": '
+                                  '[x, y, z] unit, "travel_mm": [lo, hi]}; null: it stands free.')
     summary: dict[str, Any] = Field(description="Bounding box (mm), face and vertex counts, watertightness.")
     resting_poses: list[dict[str, Any]] = Field(description="Stable poses on a plane: T_plane_obj and probability.")
     photo: dict[str, Any] | None = Field(

@@ -43,11 +43,14 @@ def _load_candidates(args) -> tuple[list, bool]:
         from app.geometry.library_manifest import load_library_manifest
 
         lib = Path(args.library)
-        for e in load_library_manifest(lib):
+        entries = load_library_manifest(lib)
+        key_of = {e.name: e.key for e in entries} | {e.key: e.key for e in entries}   # candidates go by key
+        for e in entries:
             if e.kind in ("workpiece", "clamp", "support"):
+                guide = None if e.guide is None else {**e.guide, "carrier": key_of[e.guide["carrier"]]}
                 cands.append(Candidate(name=e.key, mesh=load_mesh((lib / e.file).read_bytes(), e.file, e.units),
                                        kind=e.kind, T_obj_datum=None if e.T_obj_datum is None else np.asarray(e.T_obj_datum),
-                                       support_surfaces=e.support_surfaces))
+                                       support_surfaces=e.support_surfaces, guide=guide))
         recognise = not (args.model or args.clamp or args.support)
     return cands, recognise
 

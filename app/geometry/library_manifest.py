@@ -4,11 +4,17 @@
                  "file": "tslot_table_800x400.stl", "units": "mm",
                  "fiducials": "tslot_table_800x400.fiducials.json" | null,
                  "T_obj_datum": 4x4 | null, "description": "...",
-                 "support_surfaces": [{"name": "seat", "z_mm": 70.0, "outline_xy": [[x, y], ...]}]}]}
+                 "support_surfaces": [{"name": "seat", "z_mm": 70.0, "outline_xy": [[x, y], ...]}],
+                 "guide": {"carrier": "vise_body", "T_carrier_obj": 4x4, "axis": [1, 0, 0],
+                           "travel_mm": [-95, 100]} | null}]}
 
 ``support_surfaces`` (optional, clamps and supports only): the plane patches a part can rest on, in
 the model's own frame (``app/geometry/support_surfaces.py``); left out or null: derived from the
 mesh's upward faces; []: the model carries nothing.
+
+``guide`` (optional, clamps and supports only): what carries the model and how it moves there (a
+vise's moving jaw on its body), in the carrier's frame (``app/geometry/guides.py``); ``carrier`` is
+the key or name of another model. Left out or null: the model stands free.
 
 Paths are relative to the manifest's folder. Pure: reads files, no database.
 """
@@ -23,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from app.geometry.fiducial_layout import FiducialLayout, parse_layout
+from app.geometry.guides import parse_guide
 from app.geometry.mesh import SUPPORTED_SUFFIXES, UNIT_SCALE_TO_MM
 from app.geometry.support_surfaces import parse_support_surfaces
 from app.geometry.transforms import PoseError, check_pose
@@ -40,7 +47,8 @@ class LibraryManifestError(ValueError):
 class LibraryEntry:
     """One model of the library. ``file`` / ``fiducials`` are relative to the library folder;
     ``T_obj_datum`` (4x4, mm) or None; ``layout`` is the parsed fiducial layout or None;
-    ``support_surfaces`` the declared surfaces (model frame, mm) or None (derive from the mesh)."""
+    ``support_surfaces`` the declared surfaces (model frame, mm) or None (derive from the mesh);
+    ``guide`` what carries the model and how it moves there (``app/geometry/guides.py``) or None."""
 
     key: str
     kind: str
@@ -53,6 +61,7 @@ class LibraryEntry:
     layout: FiducialLayout | None = field(default=None, repr=False)
     library_dir: Path = field(default=Path("."), repr=False)
     support_surfaces: list[dict] | None = field(default=None, repr=False, hash=False)
+    guide: dict | None = field(default=None, repr=False, hash=False)
 
     @property
     def path(self) -> Path:
@@ -115,16 +124,24 @@ def _entry(raw: object, i: int, library_dir: Path) -> LibraryEntry:
         surfaces = parse_support_surfaces(raw.get("support_surfaces"), kind)
     except ValueError as exc:
         raise LibraryManifestError(f"{where}: {exc}") from None
+    try:
+        guide = parse_guide(raw.get("guide"), kind)
+    except ValueError as exc:
+        raise LibraryManifestError(f"{where}: {exc}") from None
+    if guide is not None and guide["carrier"] in (key, raw["name"].strip()):
+        raise LibraryManifestError(f"{where}: guide.carrier names the model itself; give the model that carries it")
 
     return LibraryEntry(key=key, kind=kind, name=raw["name"].strip(), file=file, units=units,
                         fiducials=fid, T_obj_datum=T, description=str(raw.get("description", "")),
-                        layout=layout, library_dir=library_dir, support_surfaces=surfaces)
+                        layout=layout, library_dir=library_dir, support_surfaces=surfaces,
+                        guide=guide)
 
 
 def load_library_manifest(library_dir: Path | str) -> list[LibraryEntry]:
     """Read ``<library_dir>/library.json`` and validate every entry (files exist, kinds, units,
     poses via ``check_pose``, fiducial layouts via ``parse_layout``, support surfaces via
-    ``parse_support_surfaces``, unique keys).
+    ``parse_support_surfaces``, guides via ``parse_guide``, unique keys, every guide's carrier
+    another entry's key or name).
 
     Raises
     ------
@@ -147,4 +164,9 @@ def load_library_manifest(library_dir: Path | str) -> list[LibraryEntry]:
         if e.key in seen:
             raise LibraryManifestError(f"key {e.key!r} appears twice in {mpath}")
         seen.add(e.key)
+    names = seen | {e.name for e in entries}
+    for e in entries:
+        if e.guide is not None and e.guide["carrier"] not in names:
+            raise LibraryManifestError(f"model {e.key!r}: guide.carrier {e.guide['carrier']!r} is no key or name "
+                                       f"in {mpath}")
     return entries

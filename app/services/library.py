@@ -19,6 +19,7 @@ from sqlmodel import Session, col, func, select
 
 from app.geometry import mesh as meshlib
 from app.geometry.fiducial_layout import parse_layout
+from app.geometry.guides import parse_guide
 from app.geometry.library_manifest import load_library_manifest
 from app.geometry.support_surfaces import check_within_bounds, parse_support_surfaces
 from app.geometry.thumbnail import render_thumbnail
@@ -99,6 +100,20 @@ def parse_surfaces(value: Any, kind: str) -> list[dict] | None:
         raise Invalid(str(exc)) from None
 
 
+def parse_guide_field(value: Any, kind: str, own: tuple[str | None, ...] = ()) -> dict | None:
+    """A guide from JSON text or a dict (None or '' stays None); 422 with the reason otherwise
+    (``app/geometry/guides.py``). ``own``: the model's key and name, which its carrier may not be."""
+    if isinstance(value, str) and value.strip() == "":
+        return None
+    try:
+        guide = parse_guide(_from_json_text(value, "guide"), kind)
+    except ValueError as exc:
+        raise Invalid(str(exc)) from None
+    if guide is not None and guide["carrier"] in {o for o in own if o}:
+        raise Invalid(f"guide.carrier {guide['carrier']!r} names the model itself; give the model that carries it")
+    return guide
+
+
 def _check_surfaces_on_model(surfaces: list[dict] | None, summary: dict) -> None:
     """The surfaces lie on the model (its bounding box, give or take 2 mm); 422 naming the one that does not."""
     lo, hi = summary.get("bbox_min_mm"), summary.get("bbox_max_mm")
@@ -138,7 +153,7 @@ def _process_geometry(files: FileStore, session: Session, data: bytes, filename:
 
 def create_model(session: Session, files: FileStore, *, data: bytes, filename: str, kind: str, name: str,
                  units: str = "mm", T_obj_datum: Any = None, fiducials: Any = None, description: str = "",
-                 key: str | None = None, support_surfaces: Any = None, max_bytes: int = 64_000_000,
+                 key: str | None = None, support_surfaces: Any = None, guide: Any = None, max_bytes: int = 64_000_000,
                  max_faces: int = 2_000_000) -> LibraryModel:
     check_kind_units(kind, units)
     name = (name or "").strip()
@@ -147,6 +162,7 @@ def create_model(session: Session, files: FileStore, *, data: bytes, filename: s
     datum = parse_frame(T_obj_datum, "T_obj_datum")
     layout = parse_fiducials(fiducials)
     surfaces = parse_surfaces(support_surfaces, kind)
+    guide_ = parse_guide_field(guide, kind, (key, name))
     if kind == "table" and layout is None:
         log.info("table model %r uploaded without fiducial layout", name)
     geometry = _process_geometry(files, session, data, filename, units, max_bytes, max_faces)
@@ -155,7 +171,7 @@ def create_model(session: Session, files: FileStore, *, data: bytes, filename: s
     session.add(model)
     session.flush()
     session.add(ModelRevision(model_id=model.id, revision=1, T_obj_datum=datum, fiducials=layout,
-                              support_surfaces=surfaces, **geometry))
+                              support_surfaces=surfaces, guide=guide_, **geometry))
     session.flush()
     log.info("model created", extra={"model_id": model.id, "model_name": name, "kind": kind})
     return model
@@ -163,7 +179,7 @@ def create_model(session: Session, files: FileStore, *, data: bytes, filename: s
 
 def add_revision(session: Session, files: FileStore, model_id: int, *, data: bytes | None = None,
                  filename: str | None = None, units: str | None = None, T_obj_datum: Any = _UNSET,
-                 fiducials: Any = _UNSET, support_surfaces: Any = _UNSET, note: str = "",
+                 fiducials: Any = _UNSET, support_surfaces: Any = _UNSET, guide: Any = _UNSET, note: str = "",
                  max_bytes: int = 64_000_000, max_faces: int = 2_000_000) -> ModelRevision:
     """Make revision n+1 from revision n with the given changes (geometry and/or frames)."""
     model = get_model(session, model_id)
@@ -192,8 +208,11 @@ def add_revision(session: Session, files: FileStore, model_id: int, *, data: byt
     if support_surfaces is not _UNSET:
         fields["support_surfaces"] = parse_surfaces(support_surfaces, model.kind)
         changed = True
+    if guide is not _UNSET:
+        fields["guide"] = parse_guide_field(guide, model.kind, (model.key, model.name))
+        changed = True
     if not changed:
-        raise Invalid("nothing to change: give a file, units, T_obj_datum, fiducials or support_surfaces")
+        raise Invalid("nothing to change: give a file, units, T_obj_datum, fiducials, support_surfaces or guide")
     # new geometry or new surfaces: the surfaces must still lie on the model
     _check_surfaces_on_model(fields.get("support_surfaces"), fields["summary"])
     rev = ModelRevision(**{**fields, "revision": model.current_revision + 1, "note": note[:500]})
@@ -279,7 +298,8 @@ def load_example_library(session: Session, files: FileStore, library_dir: Path) 
         create_model(session, files, data=(Path(library_dir) / entry.file).read_bytes(), filename=entry.file,
                      kind=entry.kind, name=entry.name, units=entry.units,
                      T_obj_datum=_jsonable(entry.T_obj_datum), fiducials=fiducials,
-                     description=entry.description, key=entry.key, support_surfaces=entry.support_surfaces)
+                     description=entry.description, key=entry.key, support_surfaces=entry.support_surfaces,
+                     guide=entry.guide)
         added.append(entry.key)
     if added:
         log.info("example library loaded", extra={"keys": added})

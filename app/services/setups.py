@@ -13,7 +13,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from sqlmodel import Session, col, select
+from sqlmodel import Session, col, or_, select
 
 from app.geometry.mesh import load_mesh
 from app.geometry.transforms import PoseError, check_pose, make_pose, pose_from_xyz_euler
@@ -27,7 +27,7 @@ from app.services.machines import Limit, get_machine, machine_limit, read_table_
 from app.services.setup_result import LocatedObject, SetupResult
 from app.store.db import session_scope
 from app.store.files import FileStore
-from app.store.models import Capture, Job, Setup, utcnow
+from app.store.models import Capture, Job, LibraryModel, Setup, utcnow
 from app.vision import object_pose
 from app.vision.fiducials import locate_table
 from app.vision.image_header import ImageHeaderError, image_size
@@ -216,6 +216,7 @@ def library_candidates(session: Session, files: FileStore, model_refs: list[dict
         cand = Candidate(name=m.name, mesh=mesh, kind=m.kind, model_id=m.id, revision=rev.revision,
                          T_obj_datum=np.asarray(rev.T_obj_datum) if rev.T_obj_datum else None,
                          support_surfaces=rev.support_surfaces,
+                         guide=_guide_for_candidates(session, rev.guide, model_refs),
                          photo=PhotoModel.from_dict(rev.photo) if rev.photo else None)
         if prepared is not None and prepared.name == m.name:
             cand.prepared = prepared
@@ -223,6 +224,20 @@ def library_candidates(session: Session, files: FileStore, model_refs: list[dict
             cache[(rev.glb_sha256, m.kind)] = cand.prepare()
         out.append(cand)
     return out
+
+
+def _guide_for_candidates(session: Session, guide: dict | None, model_refs: list[dict]) -> dict | None:
+    """A revision's guide with its ``carrier`` (a library key or name) made the carrier's candidate
+    name (the model's name): the one the support chain knows it by. A carrier among the models asked
+    for wins over another model of the same name; one not in the library stays as written (the
+    chain then reports the guided model as not searched)."""
+    if not guide:
+        return None
+    ref = guide["carrier"]
+    asked = {int(r["model_id"]) for r in model_refs}
+    rows = session.exec(select(LibraryModel).where(or_(LibraryModel.key == ref, LibraryModel.name == ref))).all()
+    rows = sorted(rows, key=lambda m: (m.id not in asked, m.deleted_at is not None, m.key != ref, m.id))
+    return {**guide, "carrier": rows[0].name} if rows else dict(guide)
 
 
 def run_setup_job(run: JobRun, setup_id: int) -> Outcome:

@@ -73,6 +73,9 @@ class ModelRevision(SQLModel, table=True):
     # fixtures: plane patches a part can rest on, model frame ({"name", "z_mm", "outline_xy"}, mm);
     # None: derived from the mesh's upward faces; []: carries nothing
     support_surfaces: list[dict] | None = json_field()
+    # fixtures: what carries the model and how it moves there (app/geometry/guides.py: carrier,
+    # T_carrier_obj, axis, travel_mm; carrier frame, mm); None: it stands free
+    guide: dict | None = json_field()
     summary: dict = json_field(default_factory=dict, nullable=False)
     resting_poses: list[dict] = json_field(default_factory=list, nullable=False)
     # a photo model: its edge template, pictures and teach picture (app/vision/photo_model/); None: CAD

@@ -29,6 +29,14 @@ SUPPORT_SURFACES = {
     "vise_jaw": [],
 }
 
+# The moving jaw rides on the body's guide ways (its frame on the ways' top at z 70 in the body frame,
+# same rotation) and slides along the body's x axis: from its back against the ways' rear end
+# (x -150, the jaw 55 mm long: -95) to its face against the fixed jaw (x 100). Read off the meshes once.
+GUIDES = {
+    "vise_jaw": {"carrier": "vise_body", "T_carrier_obj": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 70], [0, 0, 0, 1]],
+                 "axis": [1, 0, 0], "travel_mm": [-95, 100]},
+}
+
 
 @lru_cache(maxsize=64)
 def _mesh(path: str) -> trimesh.Trimesh:
@@ -46,8 +54,10 @@ class DevsetScene:
     fixture_candidates: list[Candidate] = field(default_factory=list)
 
 
-def devset_scene(root: Path, entry: dict, fixtures=FIXTURES) -> DevsetScene:
-    """The scene of a manifest entry (``manifest.json`` -> families -> setup/moved)."""
+def devset_scene(root: Path, entry: dict, fixtures=FIXTURES, guides: dict | None = None) -> DevsetScene:
+    """The scene of a manifest entry (``manifest.json`` -> families -> setup/moved). ``guides``: the
+    fixtures' guides by name (None: :data:`GUIDES`; ``{}``: every fixture stands free)."""
+    guides = GUIDES if guides is None else guides
     root = Path(root)
     gt = json.loads((root / entry["gt"]).read_text())
     cam = gt["camera"]
@@ -57,6 +67,6 @@ def devset_scene(root: Path, entry: dict, fixtures=FIXTURES) -> DevsetScene:
     wp = dict(wp, name=entry.get("workpiece", wp.get("subtype", "workpiece")))
     table = Candidate("table", _mesh(str(root / "meshes" / "table_800x400_tslot.stl")), kind="table")
     fx = [Candidate(name, _mesh(str(root / "meshes" / f"{name}.stl")), kind=kind,
-                    support_surfaces=SUPPORT_SURFACES.get(name)) for name, kind in fixtures]
+                    support_surfaces=SUPPORT_SURFACES.get(name), guide=guides.get(name)) for name, kind in fixtures]
     return DevsetScene(gt=gt, K=np.asarray(cam["K"], float), dist=np.asarray(cam["dist"], float).ravel(),
                        layout=layout, workpiece=wp, table_candidate=table, fixture_candidates=fx)

@@ -20,6 +20,14 @@ import cv2
 import numpy as np
 import trimesh
 
+from app.geometry.guides import (
+    GUIDE_CAPTURE_DEG,
+    GUIDE_CAPTURE_MM,
+    OFF_GUIDE_DEG,
+    OFF_GUIDE_MM,
+    guide_deviation,
+    guide_start_poses,
+)
 from app.geometry.model_edges import PreparedModel, prepare_model
 from app.geometry.support_surfaces import CARRYING_KINDS
 from app.vision import object_pose
@@ -63,6 +71,10 @@ class Candidate:
     # a model taught from pictures (app/vision/photo_model/): located by its edge template in the
     # table plane instead of the CAD search; ``mesh`` is then its outline extruded to its height
     photo: PhotoModel | None = None
+    # fixtures: what carries it and how it moves there ({"carrier", "T_carrier_obj", "axis",
+    # "travel_mm"}, carrier frame, mm: app/geometry/guides.py), ``carrier`` being the carrier
+    # candidate's name; in the support chain it is searched only along the guide. None: stands free
+    guide: dict | None = None
 
     def prepare(self) -> PreparedModel:
         if self.prepared is None:
@@ -353,7 +365,7 @@ def _merge_by_place(cad: list, photo: list, by_name: dict, min_margin: float) ->
 def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done, *, min_score, min_margin,
                   photo_view: View | None = None, photo_xy=None):
     """The support chain: fixtures first (biggest first, each on the surfaces found so far, standing
-    as modelled), then every workpiece on all support surfaces and over risers of unknown height,
+    as modelled; a guided one after its carrier and only along its guide there), then every workpiece on all support surfaces and over risers of unknown height,
     with the located fixtures' edges removed from the image and their bodies as occluders."""
     from app.vision.object_pose.clamping import fixture_faces
     from app.vision.support_chain import (
@@ -373,12 +385,28 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
     if known:
         b = known[0][0].mesh.bounds
         table_xy = (float(b[0, 0]), float(b[1, 0]), float(b[0, 1]), float(b[1, 1]))
-    fixtures = sorted([c for c in ordered if c.kind in FIXTURE_KINDS], key=lambda c: -float(np.linalg.norm(c.mesh.extents)))
+    fixtures = _carriers_first(sorted([c for c in ordered if c.kind in FIXTURE_KINDS],
+                                      key=lambda c: -float(np.linalg.norm(c.mesh.extents))))
     parts = [c for c in ordered if c.kind not in FIXTURE_KINDS]
     for cand in fixtures + parts:
         t = time.perf_counter()
-        model = cand.prepare()
         fixture = cand.kind in FIXTURE_KINDS
+        # a guided fixture (a vise's moving jaw) is searched only along its guide on its located carrier
+        guide = cand.guide if fixture and cand.photo is None else None
+        carrier_pose = None if guide is None else next(
+            (p for c, p in located if c.name == guide["carrier"]), None)
+        if guide is not None and carrier_pose is None:
+            # without its carrier a guided fixture has no place to be searched: anywhere else a plain
+            # box fits many edges (a jaw "located" 556 mm from its vise)
+            why = "was not found" if any(c.name == guide["carrier"] for c in ordered) else \
+                "is not among the models looked for"
+            pose = object_pose.ObjectFailure(
+                model_name=cand.name, kind="not_found",
+                reason=f"{cand.name} not searched: it rides on {guide['carrier']}, which {why}",
+                best_score=0.0, candidates=(), timings_ms={})
+            _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table)
+            continue
+        model = cand.prepare()
         occ = [(c.prepare(), p.T_table_obj) for c, p in located]
         kn = tuple(known) + tuple((c.prepare(), p.T_table_obj) for c, p in located)
         radius = 0.5 * model.diameter_mm
@@ -386,6 +414,10 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
             planes = search_planes(seats, radius, table_risers=(0.0,), fixture_risers=(0.0,))
         else:
             planes = search_planes(surfaces, radius)
+        guided = {} if carrier_pose is None else {
+            "start_poses": guide_start_poses(guide, carrier_pose.T_table_obj),
+            "start_capture": (GUIDE_CAPTURE_MM, GUIDE_CAPTURE_DEG),
+            "keep_pose": _on_guide(guide, carrier_pose.T_table_obj)}
         if cand.photo is not None:     # taught from pictures: it rests on the table where it was taught
             pose = locate_photo(photo_view, cand.photo, cand.name, search_xy=photo_xy or table_xy,
                                 min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin)
@@ -396,7 +428,9 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
                 height_offsets_mm=tuple(planes), free_height=not fixture, known_models=kn, known_regions=labels,
                 known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
                 clamp_faces=() if fixture else tuple(jaw_faces),    # a fixture stands on its own
-                **(FIXTURE_OPTIONS if fixture else {}))
+                **guided, **(FIXTURE_OPTIONS if fixture else {}))
+            if pose and carrier_pose is not None:
+                pose = _kept_on_guide(cand, pose, guide, carrier_pose.T_table_obj)
         chain_text = ""
         if pose and fixture:
             carrier = _carrier(seats, pose, cand)
@@ -410,8 +444,10 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
                     best_score=pose.score, candidates=(), timings_ms=dict(pose.timings_ms))
         if pose:
             carrier = _carrier(seats if fixture else surfaces, pose, cand)
-            pose = dataclasses.replace(pose, chain=carrier)
+            pose = dataclasses.replace(pose, chain=carrier, guided_by=None if guide is None else guide["carrier"])
             chain_text = "rests on " + " on ".join(carrier)
+            if pose.guided_by:
+                chain_text += f", guided by {pose.guided_by}"
             if pose.held_by:
                 chain_text += ", held by " + " and ".join(dict.fromkeys(pose.held_by))
             if fixture:
@@ -424,6 +460,43 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
         _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table,
                 chain_text)
     return located, not_found
+
+
+def _carriers_first(fixtures: list[Candidate]) -> list[Candidate]:
+    """``fixtures`` in their order, except that a guided one comes after its carrier (when that is
+    among them): a jaw is searched on its located vise. A cycle of guides keeps the given order."""
+    names = {c.name for c in fixtures}
+    out: list[Candidate] = []
+    pending = list(fixtures)
+    while pending:
+        placed = {c.name for c in out}
+        ready = next((c for c in pending if c.guide is None or c.guide["carrier"] not in names
+                      or c.guide["carrier"] in placed or c.guide["carrier"] == c.name), pending[0])
+        pending.remove(ready)
+        out.append(ready)
+    return out
+
+
+def _on_guide(guide: dict, T_table_carrier: np.ndarray) -> Callable[[np.ndarray], bool]:
+    """``T_table_obj -> bool``: the pose is on the guide (within OFF_GUIDE_MM / OFF_GUIDE_DEG)."""
+    return lambda T: guide_deviation(guide, T_table_carrier, T).on_guide()
+
+
+def _kept_on_guide(cand: Candidate, pose, guide: dict, T_table_carrier: np.ndarray):
+    """The pose if it stayed on the guide; else a failure that says how far it left it (the local
+    search around each start may slide onto other edges: a pose off the guide is not the fixture)."""
+    dev = guide_deviation(guide, T_table_carrier, pose.T_table_obj)
+    if dev.on_guide():
+        return pose
+    lo, hi = guide["travel_mm"]
+    return object_pose.ObjectFailure(
+        model_name=cand.name, kind="not_found",
+        reason=(f"{cand.name} not found: the best fit ({pose.score:.0%} of its visible edges) left its guide on "
+                f"{guide['carrier']}: {dev.across_mm:.1f} mm across it, at travel {dev.travel_mm:.1f} mm (range "
+                f"{lo:g} to {hi:g}), turned {dev.angle_deg:.1f} deg (at most {OFF_GUIDE_MM:g} mm and "
+                f"{OFF_GUIDE_DEG:g} deg)"),
+        best_score=pose.score, candidates=({"T_table_obj": pose.T_table_obj.tolist(), "score": pose.score},),
+        timings_ms=dict(pose.timings_ms))
 
 
 def _carrier(surfaces, pose, cand) -> tuple[str, ...]:

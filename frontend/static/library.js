@@ -20,6 +20,9 @@ async function load() {
         ...(m.revision.support_surfaces && m.revision.support_surfaces.length
           ? [el("div", { class: "muted", text: "carries parts on: " + m.revision.support_surfaces.map((f) => `${f.name} (z ${f.z_mm} mm)`).join(", ") })]
           : []),
+        ...(m.revision.guide
+          ? [el("div", { class: "muted", text: `rides on ${m.revision.guide.carrier}, travel ${m.revision.guide.travel_mm[0]} to ${m.revision.guide.travel_mm[1]} mm` })]
+          : []),
         el("button", { text: "3D view", onclick: () => preview(m) })));
     }
   } catch (e) { say("#msg", e.message, "bad"); }

@@ -71,6 +71,11 @@ def _copy_library(tmp_path: Path) -> tuple[Path, dict]:
     return d, json.loads((d / "library.json").read_text())
 
 
+def _guide(carrier: str, **changes) -> dict:
+    return {"carrier": carrier, "T_carrier_obj": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 70], [0, 0, 0, 1]],
+            "axis": [1, 0, 0], "travel_mm": [0, 80], **changes}
+
+
 @pytest.mark.parametrize("mutate, message", [
     (lambda doc: doc["models"][1].update(kind="fixture"),
      "kind 'fixture' unknown; use one of workpiece, clamp, support, table"),
@@ -98,6 +103,16 @@ def _copy_library(tmp_path: Path) -> tuple[Path, dict]:
     (lambda doc: doc["models"][4].update(support_surfaces=[{"name": "top", "z_mm": 16,
                                                             "outline_xy": [[0, 0], [32, 0], [0, 24]]}]),
      "pin_block_32'): support_surfaces: a workpiece carries no parts"),
+    (lambda doc: doc["models"][4].update(guide=_guide("vise_150")),
+     "('pin_block_32'): guide: a workpiece is not guided; only clamp and support models ride on a carrier"),
+    (lambda doc: doc["models"][2].update(guide=_guide("vise_150", axis=[0, 0, 0])),
+     "('strap_clamp_125'): guide.axis: axis is zero"),
+    (lambda doc: doc["models"][2].update(guide=_guide("vise_150", travel_mm=[10, -10])),
+     "('strap_clamp_125'): guide.travel_mm: [10, -10]: lo must be less than hi"),
+    (lambda doc: doc["models"][2].update(guide=_guide("strap_clamp_125")),
+     "('strap_clamp_125'): guide.carrier names the model itself"),
+    (lambda doc: doc["models"][2].update(guide=_guide("no_such_vise")),
+     "model 'strap_clamp_125': guide.carrier 'no_such_vise' is no key or name"),
 ])
 def test_bad_manifest_is_refused_with_a_clear_sentence(tmp_path, mutate, message):
     d, doc = _copy_library(tmp_path)
@@ -156,3 +171,18 @@ def test_missing_or_broken_manifest(tmp_path):
     (tmp_path / "library.json").write_text("{not json")
     with pytest.raises(LibraryManifestError, match="is not valid JSON"):
         load_library_manifest(tmp_path)
+
+
+def test_a_guide_is_read_with_its_carrier_by_key_or_name(tmp_path):
+    """A clamp riding on another model (a moving jaw on its vise): the guide is read as given, the axis
+    made unit; the carrier may be named by key or by name; left out, a model stands free."""
+    d, doc = _copy_library(tmp_path)
+    doc["models"][2]["guide"] = _guide("vise_150", axis=[0, 0, 5])
+    doc["models"][3]["guide"] = _guide(doc["models"][1]["name"])
+    (d / "library.json").write_text(json.dumps(doc))
+    got = {e.key: e for e in load_library_manifest(d)}
+    assert got["strap_clamp_125"].guide == {**_guide("vise_150", axis=[0.0, 0.0, 1.0]), "travel_mm": [0.0, 80.0],
+                                     "T_carrier_obj": [[float(x) for x in r] for r in _guide("")["T_carrier_obj"]]}
+    assert got[doc["models"][3]["key"]].guide["carrier"] == doc["models"][1]["name"]
+    assert got["vise_150"].guide is None and got["pin_block_32"].guide is None
+    assert all(e.guide is None for e in load_library_manifest(LIBRARY))      # the example vises are one mesh

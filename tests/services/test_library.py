@@ -112,3 +112,32 @@ def test_migration_0006_adds_the_column_and_keeps_existing_revisions(tmp_path, b
         with engine.connect() as conn:
             assert conn.execute(sa.text("SELECT count(*) FROM model_revision")).scalar() == 1
         engine.dispose()
+
+
+def test_a_guide_loads_with_the_library_and_reaches_the_candidates_by_the_carriers_name(tmp_path):
+    """A strap clamp declared riding on the vise (by its key) in the manifest: stored on its revision,
+    and the setup's candidates name the carrier as the chain knows it (the vise model's name)."""
+    from app.services.setups import library_candidates
+
+    d = _library_copy(tmp_path, ("tslot_table_800x400", "vise_150", "strap_clamp_125"), True)
+    doc = json.loads((d / "library.json").read_text())
+    guide = {"carrier": "vise_150", "T_carrier_obj": [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 70.0], [0, 0, 0, 1.0]],
+             "axis": [1.0, 0.0, 0.0], "travel_mm": [0.0, 80.0]}
+    next(m for m in doc["models"] if m["key"] == "strap_clamp_125")["guide"] = guide
+    (d / "library.json").write_text(json.dumps(doc))
+    engine = make_engine(f"sqlite:///{tmp_path / 'lib.db'}")
+    migrate(engine)
+    files = FolderStore(tmp_path / "files")
+    with Session(engine) as s:
+        library.load_example_library(s, files, d)
+        vise, vise_rev = _current(s, "vise_150")
+        clamp, clamp_rev = _current(s, "strap_clamp_125")
+        assert clamp_rev.guide == guide and vise_rev.guide is None
+        refs = [{"model_id": m.id, "revision": m.current_revision} for m in (vise, clamp)]
+        by_name = {c.name: c for c in library_candidates(s, files, refs)}
+        assert by_name[clamp.name].guide == {**guide, "carrier": vise.name}
+        assert by_name[vise.name].guide is None
+        # a carrier not in the library stays as written: the chain reports the clamp as not searched
+        library.add_revision(s, files, clamp.id, guide={**guide, "carrier": "gone"})
+        (cand,) = library_candidates(s, files, [{"model_id": clamp.id, "revision": 2}])
+        assert cand.guide["carrier"] == "gone"

@@ -71,19 +71,51 @@ def test_part_held_between_the_located_jaws():
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
 
 
+def _fixtures(scene_id: str):
+    """The vise alone (body, then its moving jaw along the devset's declared guide)."""
+    entry = next(e for e in json.loads((DEVSET / "manifest.json").read_text())["families"]["setup"]
+                 if e["scene_id"] == scene_id)
+    sc = devset_scene(DEVSET, entry)
+    image = cv2.imread(str(DEVSET / entry["image"]), cv2.IMREAD_UNCHANGED)
+    res = localize(image, sc.K, sc.dist, sc.layout, sc.fixture_candidates, table_model=sc.table_candidate, chain=True)
+    truth = {o["name"]: np.asarray(o["T_table_object"]) for o in sc.gt["objects"]}
+    return sc, res, truth
+
+
 @pytest.mark.parametrize("scene_id", ["setup_009", "setup_014"])
 def test_vise_found_where_a_coarse_grid_missed_it(scene_id):
     """A vise is a third of the table, half hidden by its jaw and its part: on a 16 mm / 7 deg coarse
     grid its true cell ranked 57th-376th and never reached the fine stage. Fixtures are searched on a
     grid of at most 8 mm with more cells re-scored (``localize.FIXTURE_OPTIONS``)."""
-    entry = next(e for e in json.loads((DEVSET / "manifest.json").read_text())["families"]["setup"]
-                 if e["scene_id"] == scene_id)
-    sc = devset_scene(DEVSET, entry)
-    image = cv2.imread(str(DEVSET / entry["image"]), cv2.IMREAD_UNCHANGED)
-    body = next(c for c in sc.fixture_candidates if c.name == "vise_body")
-    res = localize(image, sc.K, sc.dist, sc.layout, [body], table_model=sc.table_candidate, chain=True)
+    sc, res, truth = _fixtures(scene_id)
     obj = next((o for o in res.objects if o["name"] == "vise_body"), None)
     assert obj is not None, res.not_found
-    truth = next(o for o in sc.gt["objects"] if o["name"] == "vise_body")["T_table_object"]
-    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), np.asarray(truth), body.prepare())
+    body = next(c for c in sc.fixture_candidates if c.name == "vise_body")
+    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), truth["vise_body"], body.prepare())
     assert np.linalg.norm(err[:3]) < 0.5 and np.nanmax(np.abs(err[3:])) < 0.1, err
+
+
+@pytest.mark.parametrize("scene_id", ["setup_006", "setup_016"])
+def test_the_moving_jaw_is_found_along_its_guide(scene_id):
+    """A plain box: searched anywhere in any rotation it was "ambiguous: two different poses fit almost
+    equally well" in both scenes (73 % against 67 %, 80 % against 74 %); searched only along its
+    guide on the located body it is found, on the guide, within half a millimetre."""
+    sc, res, truth = _fixtures(scene_id)
+    jaw = next((o for o in res.objects if o["name"] == "vise_jaw"), None)
+    assert jaw is not None, res.not_found
+    assert jaw["guided_by"] == "vise_body" and jaw["chain"][-1] == "table" and "vise_body" in jaw["chain"][0]
+    (stage,) = [s for s in res.stages if s.name == "locate vise_jaw"]
+    assert "guided by vise_body" in stage.message, stage.message
+    model = next(c for c in sc.fixture_candidates if c.name == "vise_jaw").prepare()
+    err = pose_error_6dof(np.asarray(jaw["T_table_obj"]), truth["vise_jaw"], model)
+    assert np.linalg.norm(err[:3]) < 0.5 and np.linalg.norm(err[3:]) < 0.3, err
+
+
+def test_a_jaw_whose_vise_was_not_found_is_not_searched():
+    """setup_021: the body is not found; searched freely the jaw was "located" 556 mm from where it is
+    (a plain box fits many places) and then hid the part's edges. Now it is reported, not guessed."""
+    _, res, _ = _fixtures("setup_021")
+    assert [o["name"] for o in res.objects if o["name"] == "vise_jaw"] == []
+    jaw = next(n for n in res.not_found if n["name"] == "vise_jaw")
+    assert jaw["kind"] == "not_found"
+    assert jaw["reason"] == "vise_jaw not searched: it rides on vise_body, which was not found"

@@ -19,6 +19,11 @@ DATUM_EXAMPLE = "[[1,0,0,0],[0,1,0,0],[0,0,1,25],[0,0,0,1]]"
 SURFACES_EXAMPLE = '[{"name": "top", "z_mm": 25, "outline_xy": [[-75, -4], [75, -4], [75, 4], [-75, 4]]}]'
 SURFACES_HELP = ("Support surfaces JSON (clamps and supports): plane patches a part can rest on, model frame, mm; "
                  "at most 16, each {name, z_mm, outline_xy: >= 3 [x, y]}")
+GUIDE_EXAMPLE = ('{"carrier": "vise_body", "T_carrier_obj": [[1,0,0,0],[0,1,0,0],[0,0,1,70],[0,0,0,1]], '
+                 '"axis": [1, 0, 0], "travel_mm": [-95, 100]}')
+GUIDE_HELP = ("Guide JSON (clamps and supports): what carries the model and how it moves there, in the carrier's "
+              "frame, mm: {carrier: key or name of the carrying model, T_carrier_obj: 4x4 at travel 0, axis: [x, y, z], "
+              "travel_mm: [lo, hi]} (a vise's moving jaw on its body); it is then searched only along the guide")
 
 
 def to_public(model, rev) -> ModelPublic:
@@ -54,15 +59,18 @@ async def create_model(
     description: Annotated[str, Form()] = "",
     support_surfaces: Annotated[str | None, Form(description=SURFACES_HELP + "; left out: derived from the mesh",
                                                  examples=[SURFACES_EXAMPLE])] = None,
+    guide: Annotated[str | None, Form(description=GUIDE_HELP + "; left out: it stands free",
+                                      examples=[GUIDE_EXAMPLE])] = None,
 ) -> ModelPublic:
     max_bytes = int(settings.max_upload_mb * 1e6)
     surfaces = json_form(support_surfaces, "support_surfaces")
+    guide_value = json_form(guide, "guide")
     data = await _read_upload(file, max_bytes)
     # reading and converting the mesh (a STEP file: seconds) in a worker thread, never on the event loop
     model = await run_in_threadpool(
         library.create_model, session, files, data=data, filename=safe_filename(file.filename), kind=kind,
         name=name, units=units, T_obj_datum=T_obj_datum, fiducials=fiducials, description=description,
-        support_surfaces=surfaces, max_bytes=max_bytes, max_faces=settings.max_mesh_faces)
+        support_surfaces=surfaces, guide=guide_value, max_bytes=max_bytes, max_faces=settings.max_mesh_faces)
     audit(session, admin.label(), "model.create", model_id=model.id, kind=model.kind, name=model.name)
     return to_public(model, library.get_revision(session, model.id))
 
@@ -134,7 +142,7 @@ def list_revisions(session: SessionDep, model_id: int) -> list[RevisionPublic]:
 
 
 @router.post("/{model_id}/revisions", status_code=status.HTTP_201_CREATED, response_model=ModelPublic,
-             summary="Make a new revision: new geometry, units, datum frame, fiducials or support surfaces")
+             summary="Make a new revision: new geometry, units, datum frame, fiducials, support surfaces or guide")
 async def add_revision(
     session: SessionDep, files: FilesDep, settings: SettingsDep, admin: AdminPrincipal, model_id: int,
     file: Annotated[UploadFile | None, File()] = None,
@@ -145,6 +153,8 @@ async def add_revision(
     support_surfaces: Annotated[str | None, Form(description=SURFACES_HELP + "; 'null' removes them (derived "
                                                              "from the mesh again), '[]' says it carries nothing",
                                                  examples=[SURFACES_EXAMPLE])] = None,
+    guide: Annotated[str | None, Form(description=GUIDE_HELP + "; 'null' removes it (it stands free)",
+                                      examples=[GUIDE_EXAMPLE])] = None,
     note: Annotated[str, Form()] = "",
 ) -> ModelPublic:
     max_bytes = int(settings.max_upload_mb * 1e6)
@@ -157,6 +167,8 @@ async def add_revision(
         kwargs["fiducials"] = None if fiducials.strip() == "null" else fiducials
     if support_surfaces is not None:
         kwargs["support_surfaces"] = json_form(support_surfaces.strip(), "support_surfaces")
+    if guide is not None:
+        kwargs["guide"] = json_form(guide.strip(), "guide")        # 'null' parses to None: removed
     rev = await run_in_threadpool(library.add_revision, session, files, model_id, units=units, note=note,
                                   max_bytes=max_bytes, max_faces=settings.max_mesh_faces, **kwargs)
     audit(session, admin.label(), "model.revision", model_id=model_id, revision=rev.revision,

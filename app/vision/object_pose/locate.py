@@ -54,7 +54,8 @@ from app.vision.object_pose.verify import same_up_to_symmetry, unexplained_edges
 @one_blas_thread
 def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options: LocateOptions | None = None,
                   occluder_models=(), known_models=(), known_regions=(), edge_image: EdgeImage | None = None,
-                  start_poses=None, known_heights_mm=None, table_extent_xy=None, clamp_faces=(), **option_changes):
+                  start_poses=None, start_capture=None, known_heights_mm=None, table_extent_xy=None, clamp_faces=(),
+                  keep_pose=None, **option_changes):
     """Locate one part on the table. Returns :class:`ObjectPose` or :class:`ObjectFailure`.
 
     Parameters
@@ -72,6 +73,9 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
         the printed fiducial labels
     start_poses : ``T_table_obj`` starts (an operator's adjusted pose, "refine from here") that
         replace the search; refinement, verification and uncertainty are as usual
+    start_capture : ``(capture_mm, capture_deg)``: how far around each start it is searched (None:
+        30 mm and 8 deg, an operator's rough pose); starts that lie close together (along a guide)
+        need less, and the search costs the square of it
     known_heights_mm : heights (table z) of surfaces known to carry parts (the table, located
         fixtures' faces); a start at another height (a riser of unknown height) has its height
         fitted with a broad prior. None: every searched height is known (unless ``free_height``).
@@ -79,6 +83,9 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
         searched within it, grown by half the part's size; None: wherever image edges meet the plane
     clamp_faces : vertical faces of located fixtures (:func:`.clamping.fixture_faces`: vise jaws, stops);
         a part face found against one is held there in the final fit, as the seat holds its height
+    keep_pose : ``T_table_obj -> bool``: where the object can be at all (a vise's moving jaw on its
+        guide); aligned starts and fine fits elsewhere are dropped before they compete (the local
+        search around a start slides onto any edges within its reach)
 
     The pose is fitted lying flat (x, y, rotation about the table normal; height on unknown risers),
     then once more in 6 DoF with the contact prior (maximum a-posteriori): that is the pose returned,
@@ -97,16 +104,23 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
                    edge_image, known_heights_mm, timings, tuple(clamp_faces))
     if isinstance(ctx, tuple):
         return fail(*ctx)
-    found = _find(ctx, start_poses, table_extent_xy)                       # stages 1 and 2
+    found = _find(ctx, start_poses, table_extent_xy, start_capture)        # stages 1 and 2
     if isinstance(found, str):
         return fail("not_found", f"{model.name} not found: {found}")
     hyps, ctx.px_per_mm = found
+    if keep_pose is not None:
+        hyps = [h for h in hyps if keep_pose(h.T_table_obj)]
+        if not hyps:
+            return fail("not_found", f"{model.name} not found: no aligned start stayed where it can be (its guide)")
     t = time.perf_counter()
     fits = [ctx.refine_rest(s.T_table_obj, s.state, hyp=h)                   # stage 3
             for h in _distinct(ctx, hyps) for s in [_settle(ctx, h)]]
+    if keep_pose is not None:
+        fits = [f for f in fits if keep_pose(f.T)]
     timings["refine"] = (time.perf_counter() - t) * 1e3
     if not fits:
-        return fail("not_found", f"{model.name} not found: no start matched any image edges")
+        return fail("not_found", f"{model.name} not found: no start matched any image edges"
+                    + (" where it can be (its guide)" if keep_pose is not None else ""))
     t = time.perf_counter()                                                # stage 4: verification
     best, fits, sym_scores = _choose(ctx, fits)
     rivals = _rivals(ctx, best, fits)
@@ -265,10 +279,11 @@ def _context(image, K, dist, T_cam_table, model, opts, occluder_models, known_mo
 # --------------------------------------------------------------------------------------------------
 
 
-def _find(ctx: LocateContext, start_poses, table_extent_xy):
+def _find(ctx: LocateContext, start_poses, table_extent_xy, start_capture=None):
     """Starts aligned in the table plane, best first, and the image scale (px per mm); or the reason."""
     if start_poses is not None:
-        return starts_from_poses(ctx.model, start_poses, ctx.T_cam_table, ctx.K, ctx.dist, ctx.eimg)
+        capture = {} if start_capture is None else dict(zip(("capture_mm", "capture_deg"), map(float, start_capture)))
+        return starts_from_poses(ctx.model, start_poses, ctx.T_cam_table, ctx.K, ctx.dist, ctx.eimg, **capture)
     o, half = ctx.opts, 0.5 * ctx.model.diameter_mm
     extent = None if table_extent_xy is None else (table_extent_xy[0] - half, table_extent_xy[1] + half,
                                                    table_extent_xy[2] - half, table_extent_xy[3] + half)

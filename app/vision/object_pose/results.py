@@ -62,6 +62,7 @@ class ObjectPose:
     timings_ms: dict
     chain: tuple = ()          # what it rests on, nearest first, down to the table (set by the caller)
     held_by: tuple = ()        # fixtures whose faces hold it in the final fit (vise jaws: .clamping)
+    guided_by: str | None = None   # the fixture whose guide it was searched along (a vise's moving jaw)
     covariance: np.ndarray | None = None   # 6x6 of (origin x, y, z mm, rotation vector rad), table axes
     photo: dict | None = None  # a photo model's match (app/vision/photo_model/): edge IoU, unexplained edges
 
@@ -90,6 +91,7 @@ class ObjectPose:
             "height_offset_mm": self.height_offset_mm,
             "chain": list(self.chain),
             "held_by": list(self.held_by),
+            "guided_by": self.guided_by,
             "cov6": None if self.covariance is None else np.where(np.isfinite(self.covariance), self.covariance, 0.0).tolist(),
             "margin": None if not np.isfinite(self.margin) else self.margin,
             "runner_up_score": None if not np.isfinite(self.runner_up_score) else self.runner_up_score,

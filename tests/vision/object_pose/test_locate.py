@@ -126,6 +126,30 @@ def test_refine_from_an_operator_pose_comes_back_to_the_part(models, clamped, dx
     assert "search" not in res.timings_ms      # no global search: only around the start
 
 
+def test_keep_pose_drops_starts_and_fits_where_the_part_cannot_be(models, clamped):
+    """A guided search: starts on a line through the part; only poses near that line compete. A line
+    that misses the part by 15 mm (within the starts' reach, so the local search finds the part
+    and slides off the line) finds nothing rather than the part off its line."""
+    scene, r, T_br, _ = clamped
+    starts = [pose_from_xyz_euler(dx) @ T_br for dx in (-40.0, -20.0, 0.0, 20.0, 40.0)]
+
+    def near_the_line(y_off):
+        return lambda T: abs(T[1, 3] - T_br[1, 3] - y_off) < 3.0
+
+    res = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma,
+                        start_poses=starts, keep_pose=near_the_line(0.0))
+    assert isinstance(res, ObjectPose), getattr(res, "reason", "")
+    assert _errors(res.T_table_obj, T_br)[0] < 0.4
+    off = [pose_from_xyz_euler(0.0, 15.0) @ T for T in starts]
+    res = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma,
+                        start_poses=off, keep_pose=near_the_line(15.0))
+    assert isinstance(res, ObjectFailure) and "bracket_140 not found" in res.reason, res
+    # the same starts without the constraint slide onto the part
+    res = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma,
+                        start_poses=off)
+    assert isinstance(res, ObjectPose) and _errors(res.T_table_obj, T_br)[0] < 0.4
+
+
 def test_refine_from_a_pose_far_from_the_part_fails_with_the_reason(models, clamped):
     scene, r, T_br, _ = clamped
     T_start = pose_from_xyz_euler(-250.0, 120.0, 0.0, 0.0, 0.0, 40.0) @ T_br
