@@ -450,7 +450,7 @@ def _rotation_about(axis: np.ndarray, angle_rad: float, center: np.ndarray) -> n
 def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = None,
                       center: np.ndarray | None = None, tol_mm: float | None = None,
                       near_fraction: float = 0.85, orders: tuple[int, ...] = (2, 3, 4, 5, 6, 8),
-                      n_points: int = 2500, seed: int = 0
+                      n_points: int = 2500, seed: int = 0, crease_ends: np.ndarray | None = None
                       ) -> tuple[list[Symmetry], np.ndarray | None]:
     """Rotations that map ``mesh`` onto itself.
 
@@ -478,8 +478,11 @@ def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = 
     tree = cKDTree(ref)
     # the sharp edges separately: small features (holes, chamfers) are mostly edges, a small share of
     # the surface but what an image shows; an exact symmetry must map the edges too
-    ev, _, feat = _edge_table(mesh, 1.0, 30.0)
-    ep, _, _ = _sample_edges(mesh.vertices, ev[feat], min(diag / 600.0, tol / 2))
+    # (``crease_ends`` (C, 2, 3): the creases as prepare_model found them, a scan's without its noise)
+    if crease_ends is None:
+        ev, _, feat = _edge_table(mesh, 1.0, 30.0)
+        crease_ends = mesh.vertices[ev[feat]]
+    ep, _, _ = _sample_segments(crease_ends[:, 0], crease_ends[:, 1], min(diag / 600.0, tol / 2))
     tree_e = cKDTree(ep) if len(ep) else None
     query_e = ep[rng.choice(len(ep), size=min(3 * n_points, len(ep)), replace=False)] if len(ep) else ep
 
@@ -604,7 +607,8 @@ def prepare_model(mesh: trimesh.Trimesh, name: str = "model", *, feature_angle_d
     cont = None
     if detect_symmetry:
         normals = [inv(s.T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0]) for s in states]
-        syms, cont = detect_symmetries(mesh, axes=normals, center=center)
+        syms, cont = detect_symmetries(mesh, axes=normals, center=center,
+                                       crease_ends=fe.edge_ends[fe.edge_feature])
     # resting states that are the same up to an exact symmetry of the part
     marked: list[RestingState] = []
     for j, s in enumerate(states):
