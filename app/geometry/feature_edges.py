@@ -10,14 +10,15 @@ angle. Two kinds of mesh break that rule, and :func:`feature_edges` handles both
   A chamfer is one strip between two wide faces and keeps its creases.
 * **Noisy meshes** (scans: fine triangles, vertex noise 0.05-0.3 mm): single triangles meet at
   random angles, and a sharp edge is spread over a band of triangles none of which alone turns by
-  the feature angle. The face normals are denoised first (bilateral filter over the vertex-sharing
-  neighbours: noise is averaged out, creases are kept), the surface is cut into smooth patches where
-  the normals measured over a neighbourhood of radius ``r`` on either side of an edge differ by a good
-  part of the feature angle, the thin band around each cut is given back to the patches on its sides,
-  and a crease is the boundary between two patches whose local normals differ by more than the
-  feature angle. Chains shorter than a few mm are dropped; each crease edge carries the line where
-  the two patches' local planes meet (a zigzag of triangle edges along a crease is drawn on that
-  line, in its direction).
+  the feature angle. The face normals are denoised first (a plain mean, then a bilateral filter
+  over the vertex-sharing neighbours: noise is averaged out, creases are kept); the surface is cut
+  where the denoised normals within a radius ``r`` (3 median edge lengths) spread like two sides of
+  a crease (:func:`_crease_zone`), the pieces in between are the smooth patches, the cut band is
+  handed back to the patches on its sides (:func:`_patches`), and a crease is a boundary between
+  two patches whose local plane fits turn by more than the feature angle. Chains shorter than
+  max(3 mm, 3 r) are dropped; each crease edge carries the line where the two patches' local planes
+  meet (the zigzag of triangle edges along a crease is drawn on that line, in its direction).
+  Silhouette-only edges are the rest where the denoised normals still turn (curved patches).
 
 A mesh counts as noisy when most of its faces have no neighbour within 1 deg of their plane: a CAD
 tessellation splits every flat or ruled face into coplanar pairs, a scan does not.
@@ -366,6 +367,8 @@ def _local_planes(mesh, lab, Nf, tree, pts, pairs_lab, radius, max_dev_deg=20.0)
 
 def _noisy_feature_edges(mesh: trimesh.Trimesh, noise_deg: float, smooth_angle_deg: float,
                          feature_angle_deg: float, radius_mm: float | None, min_chain_mm: float | None):
+    """The noisy-mesh branch of :func:`feature_edges` (see the module docstring): edge vertices,
+    faces, crease flags, ends (E, 2, 3) mm, line directions, fitted flags, denoised normals, info."""
     adj = mesh.face_adjacency
     ae = mesh.face_adjacency_edges
     V = mesh.vertices
