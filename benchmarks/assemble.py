@@ -8,7 +8,7 @@ under a short index, so BENCHMARKS.md is never edited by hand in two places.
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["table_pose", "object_pose", "calibration", "mesh_pipeline", "sheet", "rotary", "planning"]
+ORDER = ["table_pose", "object_pose", "feature_edges", "calibration", "mesh_pipeline", "sheet", "rotary", "planning"]
 #: topics measured by a test on the controller sim rather than a script of their own
 SOURCES = {"rotary_table": "tests/e2e/test_rotary_table_sim.py` (LinuxCNC XYZC sim)",
            "detour_subroutine": "tests/planning/test_detour_sim.py` (the LinuxCNC sim)"}

@@ -42,7 +42,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from app.geometry import parts  # noqa: E402
-from app.geometry.model_edges import prepare_model, visible_edge_samples  # noqa: E402
+from app.geometry.model_edges import EDGE_MODEL_VERSION, prepare_model, visible_edge_samples  # noqa: E402
 from app.geometry.transforms import inv, rvec_tvec_to_pose, pose_to_rvec_tvec  # noqa: E402
 from app.synth.scene import SceneObject, look_at_pose, place_on_table, random_intrinsics, render_scene  # noqa: E402
 from app.vision import object_pose as op  # noqa: E402
@@ -277,7 +277,7 @@ def main(argv=None) -> int:
     print(f"scenes ready ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     if args.generate_only:
         return 0
-    pfile = cache / "prepared.pkl"
+    pfile = cache / f"prepared_v{EDGE_MODEL_VERSION}.pkl"   # a new edge model version: prepare again
     if pfile.exists():
         with open(pfile, "rb") as fh:
             prepared = pickle.load(fh)
@@ -287,7 +287,7 @@ def main(argv=None) -> int:
             pickle.dump(prepared, fh)
     from app.vision.fiducials import locate_table
 
-    tfile = cache / "table_prepared.pkl"
+    tfile = cache / f"table_prepared_v{EDGE_MODEL_VERSION}.pkl"
     if tfile.exists():
         with open(tfile, "rb") as fh:
             table_model = pickle.load(fh)

@@ -22,6 +22,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from app.geometry.feature_edges import feature_edges
 from app.geometry.mesh import resting_poses
 from app.geometry.transforms import inv, make_pose, transform_points
 
@@ -36,7 +37,12 @@ __all__ = [
     "visible_edge_samples",
     "resting_pose",
     "detect_symmetries",
+    "EDGE_MODEL_VERSION",
 ]
+
+#: bumped whenever the edges prepare_model picks from a mesh can change: key pickled PreparedModels
+#: with it. 2: creases from features, not tessellation (coarse facets and scan noise, feature_edges.py)
+EDGE_MODEL_VERSION = 2
 
 
 # --------------------------------------------------------------------------------------------------
@@ -97,9 +103,12 @@ class Symmetry:
 class PreparedModel:
     """A CAD model prepared for edge matching (build it with :func:`prepare_model`).
 
-    Edge arrays describe the mesh edges that can ever show in an image: crease edges (dihedral angle
-    above ``feature_angle_deg``), boundary edges, and curved-surface edges (angle above
-    ``smooth_angle_deg``) that show as silhouettes only.
+    Edge arrays describe the mesh edges that can ever show in an image: crease edges (the part's
+    surfaces meeting at more than ``feature_angle_deg``; :mod:`app.geometry.feature_edges`), boundary
+    edges, and curved-surface edges (the facets of a bore, a fillet, a scan) that show as silhouettes
+    only. On a noisy (scanned) mesh a crease's samples lie on the line where its two surfaces'
+    fitted planes meet, and ``denoised_normals`` replace the mesh's own face normals wherever the
+    model asks which way a face turns (:attr:`face_normals`).
     """
 
     name: str
@@ -119,10 +128,12 @@ class PreparedModel:
     diameter_mm: float
     feature_angle_deg: float
     extra: dict = field(default_factory=dict)
+    denoised_normals: np.ndarray | None = None   # (F, 3) obj frame, for a noisy mesh; else None
 
     @property
     def face_normals(self) -> np.ndarray:
-        return self.mesh.face_normals
+        """(F, 3) unit face normals, obj frame: denoised for a scan, else the mesh's own."""
+        return self.mesh.face_normals if self.denoised_normals is None else self.denoised_normals
 
     def to_dict(self) -> dict:
         return {
@@ -327,8 +338,11 @@ def _edge_table(mesh: trimesh.Trimesh, smooth_angle_deg: float, feature_angle_de
 
 
 def _sample_edges(vertices: np.ndarray, edge_vertices: np.ndarray, step_mm: float):
-    a = vertices[edge_vertices[:, 0]]
-    b = vertices[edge_vertices[:, 1]]
+    return _sample_segments(vertices[edge_vertices[:, 0]], vertices[edge_vertices[:, 1]], step_mm)
+
+
+def _sample_segments(a: np.ndarray, b: np.ndarray, step_mm: float):
+    """Points every ~``step_mm`` along segments a[i] -> b[i] (mm): points, segment index, direction."""
     L = np.linalg.norm(b - a, axis=1)
     n = np.maximum(1, np.ceil(L / step_mm).astype(np.int64))
     rep = np.repeat(np.arange(len(L)), n)
@@ -340,11 +354,17 @@ def _sample_edges(vertices: np.ndarray, edge_vertices: np.ndarray, step_mm: floa
     return pts, rep, d[rep]
 
 
-def _corner_distance(vertices, ev, feat, pts, rep, corner_angle_deg: float = 30.0) -> np.ndarray:
+def _corner_distance(vertices, ev, feat, pts, rep, corner_angle_deg: float = 30.0,
+                     line_dir: np.ndarray | None = None, ends: np.ndarray | None = None) -> np.ndarray:
     """Distance (mm) of each edge sample to the nearest corner: a vertex where crease edges do not
     continue straight on (not exactly two crease edges, or two meeting at more than
     ``corner_angle_deg``). Silhouette-only edges (curved faces) use their own two ends. Image edges
-    near corners are blurred by the other edge, so the subpixel search leaves them out."""
+    near corners are blurred by the other edge, so the subpixel search leaves them out.
+    ``line_dir`` (E, 3), where given (not NaN), is the direction of a crease fitted to a noisy
+    mesh: two such edges continue straight on when their lines are parallel, however the triangle
+    edges under them zigzag. ``ends`` (E, 2, 3) are where the edges are drawn (default their vertices)."""
+    if line_dir is not None and np.any(np.isfinite(line_dir[feat, 0])):
+        return _corner_distance_lines(vertices, ev, feat, pts, rep, corner_angle_deg, line_dir, ends)
     fe = ev[feat]
     inc: dict[int, list[int]] = {}
     for k, (a, b) in enumerate(fe):
@@ -376,6 +396,52 @@ def _corner_distance(vertices, ev, feat, pts, rep, corner_angle_deg: float = 30.
     return np.asarray(out, dtype=float)
 
 
+def _corner_distance_lines(vertices, ev, feat, pts, rep, corner_angle_deg, line_dir, ends) -> np.ndarray:
+    """:func:`_corner_distance` for creases with fitted line directions (see there)."""
+    fe = ev[feat]
+    fd = line_dir[feat]
+    raw = ~np.isfinite(fd[:, 0])
+    ends = vertices[ev] if ends is None else ends
+    fd[raw] = (ends[feat][raw, 1] - ends[feat][raw, 0])
+    fd = fd / np.maximum(np.linalg.norm(fd, axis=1, keepdims=True), 1e-12)
+    v = np.concatenate([fe[:, 0], fe[:, 1]])
+    k = np.concatenate([np.arange(len(fe)), np.arange(len(fe))])
+    order = np.argsort(v, kind="stable")
+    v, k = v[order], k[order]
+    uniq, start, count = np.unique(v, return_index=True, return_counts=True)
+    corner = count != 2
+    two = np.nonzero(count == 2)[0]
+    c = np.abs(np.einsum("ij,ij->i", fd[k[start[two]]], fd[k[start[two] + 1]]))
+    corner[two] = c < np.cos(np.radians(corner_angle_deg))
+    out = np.full(len(pts), np.inf)
+    if np.any(corner):
+        out, _ = cKDTree(vertices[uniq[corner]]).query(pts)
+    smooth = ~feat[rep]
+    if np.any(smooth):
+        a, b = ends[rep[smooth], 0], ends[rep[smooth], 1]
+        p = pts[smooth]
+        out[smooth] = np.minimum(np.linalg.norm(p - a, axis=1), np.linalg.norm(p - b, axis=1))
+    return np.asarray(out, dtype=float)
+
+
+def _thin_samples(pts: np.ndarray, keep_from: np.ndarray, min_gap_mm: float) -> np.ndarray:
+    """(S,) bool: samples to keep. Among ``keep_from`` (samples of fitted creases, which lie on their
+    line and overlap where the triangle edges under them zigzag back) drop those within
+    ``min_gap_mm`` of an earlier one."""
+    keep = np.ones(len(pts), bool)
+    idx = np.nonzero(keep_from)[0]
+    if len(idx) < 2:
+        return keep
+    pairs = cKDTree(pts[idx]).query_pairs(min_gap_mm, output_type="ndarray")
+    if len(pairs):
+        drop = np.zeros(len(idx), bool)
+        for i, j in pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]:
+            if not drop[i]:
+                drop[j] = True
+        keep[idx[drop]] = False
+    return keep
+
+
 def _rotation_about(axis: np.ndarray, angle_rad: float, center: np.ndarray) -> np.ndarray:
     R = Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle_rad).as_matrix()
     return make_pose(R, center - R @ center)
@@ -384,7 +450,7 @@ def _rotation_about(axis: np.ndarray, angle_rad: float, center: np.ndarray) -> n
 def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = None,
                       center: np.ndarray | None = None, tol_mm: float | None = None,
                       near_fraction: float = 0.85, orders: tuple[int, ...] = (2, 3, 4, 5, 6, 8),
-                      n_points: int = 2500, seed: int = 0
+                      n_points: int = 2500, seed: int = 0, crease_ends: np.ndarray | None = None
                       ) -> tuple[list[Symmetry], np.ndarray | None]:
     """Rotations that map ``mesh`` onto itself.
 
@@ -412,8 +478,11 @@ def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = 
     tree = cKDTree(ref)
     # the sharp edges separately: small features (holes, chamfers) are mostly edges, a small share of
     # the surface but what an image shows; an exact symmetry must map the edges too
-    ev, _, feat = _edge_table(mesh, 1.0, 30.0)
-    ep, _, _ = _sample_edges(mesh.vertices, ev[feat], min(diag / 600.0, tol / 2))
+    # (``crease_ends`` (C, 2, 3): the creases as prepare_model found them, a scan's without its noise)
+    if crease_ends is None:
+        ev, _, feat = _edge_table(mesh, 1.0, 30.0)
+        crease_ends = mesh.vertices[ev[feat]]
+    ep, _, _ = _sample_segments(crease_ends[:, 0], crease_ends[:, 1], min(diag / 600.0, tol / 2))
     tree_e = cKDTree(ep) if len(ep) else None
     query_e = ep[rng.choice(len(ep), size=min(3 * n_points, len(ep)), replace=False)] if len(ep) else ep
 
@@ -511,9 +580,17 @@ def prepare_model(mesh: trimesh.Trimesh, name: str = "model", *, feature_angle_d
     mesh = mesh.copy()
     diameter = float(np.linalg.norm(mesh.extents))
     step = float(sample_step_mm) if sample_step_mm else float(np.clip(diameter / 300.0, 0.25, 4.0))
-    ev, ef, feat = _edge_table(mesh, smooth_angle_deg, feature_angle_deg)
-    pts, rep, d = _sample_edges(mesh.vertices, ev, step)
-    corner_mm = _corner_distance(mesh.vertices, ev, feat, pts, rep)
+    fe = feature_edges(mesh, smooth_angle_deg=smooth_angle_deg, feature_angle_deg=feature_angle_deg)
+    ev, ef, feat = fe.edge_vertices, fe.edge_faces, fe.edge_feature
+    pts, rep, d = _sample_segments(fe.edge_ends[:, 0], fe.edge_ends[:, 1], step)
+    if np.any(fe.fitted):
+        d = np.where(fe.fitted[rep][:, None], fe.edge_line_dir[rep], d)
+        keep = _thin_samples(pts, fe.fitted[rep], 0.7 * step)
+        pts, rep, d = pts[keep], rep[keep], d[keep]
+        line_dir = np.where(fe.fitted[:, None], fe.edge_line_dir, np.nan)
+        corner_mm = _corner_distance(mesh.vertices, ev, feat, pts, rep, line_dir=line_dir, ends=fe.edge_ends)
+    else:
+        corner_mm = _corner_distance(mesh.vertices, ev, feat, pts, rep)
     center = np.asarray(mesh.center_mass if mesh.is_watertight else mesh.centroid, dtype=float)
 
     states: list[RestingState] = []
@@ -530,7 +607,8 @@ def prepare_model(mesh: trimesh.Trimesh, name: str = "model", *, feature_angle_d
     cont = None
     if detect_symmetry:
         normals = [inv(s.T_rest_obj)[:3, :3] @ np.array([0.0, 0.0, 1.0]) for s in states]
-        syms, cont = detect_symmetries(mesh, axes=normals, center=center)
+        syms, cont = detect_symmetries(mesh, axes=normals, center=center,
+                                       crease_ends=fe.edge_ends[fe.edge_feature])
     # resting states that are the same up to an exact symmetry of the part
     marked: list[RestingState] = []
     for j, s in enumerate(states):
@@ -551,7 +629,8 @@ def prepare_model(mesh: trimesh.Trimesh, name: str = "model", *, feature_angle_d
         samples_obj=pts, sample_edge=rep, sample_dir_obj=d, sample_corner_mm=corner_mm,
         sample_step_mm=step,
         resting_states=tuple(marked), symmetries=tuple(syms), continuous_axis_obj=cont,
-        center_obj=center, diameter_mm=diameter, feature_angle_deg=feature_angle_deg)
+        center_obj=center, diameter_mm=diameter, feature_angle_deg=feature_angle_deg,
+        extra={"edges": fe.info, "edge_model_version": EDGE_MODEL_VERSION}, denoised_normals=fe.face_normals)
 
 
 def _with_cad_stances(mesh: trimesh.Trimesh, center: np.ndarray, states: list[RestingState],
@@ -598,7 +677,7 @@ def _front_facing(model: PreparedModel, T_cam_obj: np.ndarray) -> np.ndarray:
     """(F,) bool: face turned towards the camera (camera centre on the face's outer side)."""
     cam_obj = inv(T_cam_obj)[:3, 3]
     tri0 = model.mesh.vertices[model.mesh.faces[:, 0]]
-    return np.einsum("ij,ij->i", model.mesh.face_normals, cam_obj - tri0) > 0
+    return np.einsum("ij,ij->i", model.face_normals, cam_obj - tri0) > 0
 
 
 def visible_edge_samples(model: PreparedModel, T_cam_obj: np.ndarray, K: np.ndarray, dist,

@@ -132,7 +132,7 @@ def edge_faces_of(model: PreparedModel, T_rest_obj: np.ndarray, sel: np.ndarray)
     """What the image scorer needs to tell which template samples can show: the normals (resting
     frame) of the faces either side of each sample's edge (a boundary edge repeats its one face),
     and which edges are smooth (a bore's or a fillet's facets: they show only as silhouettes)."""
-    N = model.mesh.face_normals @ T_rest_obj[:3, :3].T
+    N = model.face_normals @ T_rest_obj[:3, :3].T
     ef_s = model.edge_faces[model.sample_edge[sel]]
     return (N[ef_s[:, 0]], N[np.where(ef_s[:, 1] >= 0, ef_s[:, 1], ef_s[:, 0])],
             ~model.edge_feature[model.sample_edge[sel]])
@@ -158,7 +158,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     rs = model.resting_states[state]
     P = transform_points(rs.T_rest_obj, model.samples_obj)
     D = model.sample_dir_obj @ rs.T_rest_obj[:3, :3].T
-    N = model.mesh.face_normals @ rs.T_rest_obj[:3, :3].T
+    N = model.face_normals @ rs.T_rest_obj[:3, :3].T
     horizontal = np.abs(D[:, 2]) < 0.3
     cand = np.nonzero(horizontal)[0]
     if len(cand) == 0:
