@@ -365,8 +365,9 @@ def _merge_by_place(cad: list, photo: list, by_name: dict, min_margin: float) ->
 def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done, *, min_score, min_margin,
                   photo_view: View | None = None, photo_xy=None):
     """The support chain: fixtures first (biggest first, each on the surfaces found so far, standing
-    as modelled; a guided one after its carrier and only along its guide there), then every workpiece on all support surfaces and over risers of unknown height,
-    with the located fixtures' edges removed from the image and their bodies as occluders."""
+    as modelled; a guided one after its carrier and only along its guide there), then every workpiece
+    on all support surfaces and over risers of unknown height, with the located fixtures' edges
+    removed from the image and their bodies as occluders."""
     from app.vision.object_pose.clamping import fixture_faces
     from app.vision.support_chain import (
         declared_surfaces,
