@@ -20,3 +20,25 @@ def external_data() -> Path:
     if not EXTERNAL_DATA.is_dir():
         pytest.fail(f"external test data missing: expected {EXTERNAL_DATA} (../shared beside the clone)")
     return EXTERNAL_DATA
+
+
+# -- pytest-xdist (``make test`` runs ``-n 2 --dist loadgroup``) -----------------------------------------
+LINUXCNC_GROUP = "linuxcnc"
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the xdist_group marks
+def pytest_collection_modifyitems(config, items):
+    """Every test marked ``linuxcnc`` goes to one xdist worker: LinuxCNC runs once per computer, and the
+    process that started the sim keeps it, and its session lock, until it exits (linuxcnc_sim.py), so a
+    second worker asking for it would wait for the lock and fail."""
+    for item in items:
+        if item.get_closest_marker("linuxcnc"):
+            item.add_marker(pytest.mark.xdist_group(LINUXCNC_GROUP))
+
+
+@pytest.hookimpl(tryfirst=True)  # before the test's fixtures are set up
+def pytest_runtest_setup(item):
+    """Tell linuxcnc_sim whether the test about to run may start the sim (see ``shared_sim``)."""
+    from tests.machine import linuxcnc_sim
+
+    linuxcnc_sim.CALLER_MARKED = item.get_closest_marker("linuxcnc") is not None

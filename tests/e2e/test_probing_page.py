@@ -238,6 +238,7 @@ def test_a_clamp_not_located_is_refused_until_the_operator_draws_where_it_is(pag
     assert page.js_errors == []
 
 
+@pytest.mark.linuxcnc
 @pytest.mark.slow
 def test_with_linuxcnc_the_page_offers_only_the_frame_the_controller_holds(page, service):  # noqa: F811
     """Item 4 on a live controller (the LinuxCNC sim): before a verified export the page refuses; after
