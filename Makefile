@@ -3,6 +3,9 @@
 
 HOST ?= 127.0.0.1
 PORT ?= 8000
+# pytest-xdist workers for `make test` (0: one process, e.g. for -s or --pdb); tests that share the one
+# LinuxCNC sim go to one worker (xdist_group, tests/conftest.py)
+PYTEST_WORKERS ?= 2
 
 run:  ## set up and start the service (SQLite under ./var, example library loaded)
 	scripts/bootstrap.sh run
@@ -10,4 +13,4 @@ run:  ## set up and start the service (SQLite under ./var, example library loade
 
 test:  ## set up and run the whole test suite (SQLite and PostgreSQL, browser, controller sim)
 	scripts/bootstrap.sh test
-	.venv/bin/python -m pytest -q $(PYTEST_ARGS)
+	.venv/bin/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadgroup $(PYTEST_ARGS)

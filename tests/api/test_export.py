@@ -27,6 +27,7 @@ def lcnc_g54(lcnc) -> tuple[list[float], float]:
     return st["g5x_offset"], st["rotation_xy"]
 
 
+@pytest.mark.linuxcnc
 def test_unconfirmed_is_refused_and_controller_untouched(server, lcnc, lcnc_machine):
     before = lcnc_g54(lcnc)
     sid = located_setup(server, lcnc_machine["id"], pose_from_xyz_euler(100, 50, 0, 0, 0, 10))
@@ -41,6 +42,7 @@ def test_unconfirmed_is_refused_and_controller_untouched(server, lcnc, lcnc_mach
     assert lcnc_g54(lcnc) == before
 
 
+@pytest.mark.linuxcnc
 def test_confirmed_export_is_written_read_back_and_not_repeated(server, lcnc, lcnc_machine):
     T_table_obj = pose_from_xyz_euler(123.456, 78.9, 0, 0, 0, 12.5)
     datum = pose_from_xyz_euler(-20, -10, 25)
@@ -72,6 +74,7 @@ def test_confirmed_export_is_written_read_back_and_not_repeated(server, lcnc, lc
         assert current["x_mm"] == pytest.approx(expected[0, 3], abs=1e-4)
 
 
+@pytest.mark.linuxcnc
 @pytest.mark.parametrize("case, kwargs, status, detail", [
     ("outside travel", {"T_table_obj": pose_from_xyz_euler(5000, 0, 0)}, 422, "outside the machine's travel"),
     ("tilted", {"T_table_obj": pose_from_xyz_euler(100, 50, 0, 0.5, 0, 0)}, 422, "residual tilt"),
@@ -89,6 +92,7 @@ def test_implausible_offsets_are_refused(server, lcnc, lcnc_machine, case, kwarg
     assert lcnc_g54(lcnc) == before
 
 
+@pytest.mark.linuxcnc
 def test_large_change_needs_acknowledgement(server, lcnc, lcnc_machine):
     sid = located_setup(server, lcnc_machine["id"], pose_from_xyz_euler(300, 300, 0, 0, 0, -40))
     before = lcnc_g54(lcnc)
@@ -99,6 +103,7 @@ def test_large_change_needs_acknowledgement(server, lcnc, lcnc_machine):
         assert lcnc_g54(lcnc) == before
 
 
+@pytest.mark.linuxcnc
 def test_adjusting_after_confirmation_needs_a_new_confirmation(server, lcnc, lcnc_machine):
     sid = located_setup(server, lcnc_machine["id"], pose_from_xyz_euler(100, 50, 0))
     with server.client("operator") as c:

@@ -19,7 +19,7 @@ from app.store.models import AuditEntry, Export
 from tests.support.factories import located_setup, make_machine
 from tests.support.live_server import LiveServer, free_port, postgres_database, postgres_unavailable_reason
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.linuxcnc]
 
 
 def _confirmed(srv, machine_id: int, x: float) -> tuple[int, WorkOffset]:

@@ -61,6 +61,7 @@ def test_path_around_a_located_setup_is_collision_free(client, bracket_setup):
         assert max(w[2] for m in body["moves"] for w in m["waypoints_mm"]) >= top + 5 - 1e-6
 
 
+@pytest.mark.linuxcnc
 def test_probing_program_needs_confirmation_then_runs_on_linuxcnc(server, bracket_setup):
     sid, T, _ = bracket_setup
     with server.client("operator") as c:

@@ -222,6 +222,7 @@ def test_objects_asked_for_but_not_located_refuse_with_their_names(server, good_
         assert r.status_code == 422 and r.json()["code"] == "no_go_invalid", (bad, r.text)
 
 
+@pytest.mark.linuxcnc
 @pytest.mark.integration
 def test_frame_must_be_exported_and_held_by_the_controller(server, lcnc):
     """With a live controller the program is offered only for a slot holding this revision's datum:

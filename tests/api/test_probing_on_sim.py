@@ -21,7 +21,7 @@ from app.store.models import Setup
 from tests.support.factories import located_setup, make_machine
 from tests.support.scenes import library_mesh
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.linuxcnc]
 
 SIZE = (120.0, 70.0, 35.0)
 DATUM = pose_from_xyz_euler(-SIZE[0] / 2, -SIZE[1] / 2, SIZE[2] / 2)  # front-left top corner

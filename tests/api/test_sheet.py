@@ -149,6 +149,7 @@ def exported(server, lcnc, lcnc_machine, camera, bed_image):
         return a, r.json()
 
 
+@pytest.mark.linuxcnc
 def test_export_writes_xy_c_to_linuxcnc_and_keeps_z(server, lcnc, exported):
     a, body = exported
     assert body["status"] == "verified"
@@ -189,6 +190,7 @@ def _read_sse(url: str, token: str, out: list, timeout_s: float = 120.0) -> None
                     return
 
 
+@pytest.mark.linuxcnc
 def test_monitor_bands_redatum_missing_and_stop_on_linuxcnc(server, lcnc, exported):
     a, _ = exported
     # frames: still, small shift (ok), 1.8 mm (redatum), missing, unreadable, same place (ok vs the new datum),
@@ -360,6 +362,7 @@ def _wait_idle(lcnc, timeout_s: float = 5.0) -> dict:
     return lcnc.status()
 
 
+@pytest.mark.linuxcnc
 def test_redatum_during_a_program_holds_it_and_unseen_frames_hold_it(server, lcnc, exported):
     """LinuxCNC refuses offset changes while a program runs: the re-datum holds the program instead; frames
     without the sheet hold it after hold_after_unseen in a row; the operator's stop aborts it."""

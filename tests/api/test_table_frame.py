@@ -76,6 +76,7 @@ def test_position_from_a_controller_that_cannot_tell_is_a_409_with_the_reason(cl
     assert "type the position the controller shows" in r.json()["detail"]
 
 
+@pytest.mark.linuxcnc
 @pytest.mark.integration
 def test_position_is_read_from_the_linuxcnc_sim(client, table_id, lcnc):  # noqa: F811
     mid = _machine(client, table_id, lcnc.settings)

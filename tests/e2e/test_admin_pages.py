@@ -24,7 +24,7 @@ import pytest
 from tests.support.browser import ARTIFACTS, CHROMIUM, skip_without_chromium
 from tests.support.service_process import clean_env, service_process
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.linuxcnc]
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLES = REPO / "samples"

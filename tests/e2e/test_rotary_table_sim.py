@@ -22,7 +22,7 @@ from app.machine import WorkOffset
 from tests.support.live_server import live_server
 from tests.support.scenes import library_entry, library_mesh, rotary_scene
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.linuxcnc]
 
 PICTURE_DEG = 37.0
 # the C axis at machine (40, 30, -200), its frame turned 0.5° (a slightly rotated mounting), the example

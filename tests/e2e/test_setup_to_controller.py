@@ -80,6 +80,7 @@ def _assert_offset(written: dict, setup: dict, truth: np.ndarray) -> None:
     assert abs(written["c_deg"] - c_truth) <= 3 * (sig["rz_deg"] or 0) + 0.01
 
 
+@pytest.mark.linuxcnc
 def test_image_to_linuxcnc(server):
     from tests.machine.linuxcnc_sim import shared_sim, skip_reason
 

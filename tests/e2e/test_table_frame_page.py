@@ -20,7 +20,7 @@ from tests.e2e.test_admin_pages import REPO, browser, lcnc, menu, sign_in  # noq
 from tests.support.browser import ARTIFACTS, skip_without_chromium
 from tests.support.service_process import clean_env, service_process
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.linuxcnc]
 
 skip_without_chromium()
 

@@ -366,6 +366,8 @@ class LinuxCncSim:
 
 
 _SHARED: LinuxCncSim | None = None
+#: whether the running test is marked ``linuxcnc`` (set per test by tests/conftest.py; True outside pytest)
+CALLER_MARKED = True
 
 
 def shared_sim(coordinates: str = "XYZ") -> LinuxCncSim:
@@ -373,8 +375,13 @@ def shared_sim(coordinates: str = "XYZ") -> LinuxCncSim:
     stopped when the process exits. Every test package that needs LinuxCNC should use this, so two
     fixtures in one pytest run never try to start two instances (LinuxCNC allows one per computer).
     ``coordinates``: "XYZ" (the mill) or "XYZC" (a C rotary table, joint 3); asking for the other
-    kind stops the running sim and starts a fresh one."""
+    kind stops the running sim and starts a fresh one. Under pytest-xdist only tests marked ``linuxcnc``
+    may call it (tests/conftest.py sends them all to one worker)."""
     global _SHARED
+    if os.environ.get("PYTEST_XDIST_WORKER") and not CALLER_MARKED:
+        # fail at once and every time, not only when the test lands on the other worker (after 180 s)
+        raise SimError("this test uses the LinuxCNC sim but is not marked pytest.mark.linuxcnc: under "
+                       "pytest-xdist all such tests must run in the one worker that holds the sim")
     if _SHARED is None or _SHARED.proc is None or _SHARED.proc.poll() is not None \
             or _SHARED.coordinates != coordinates:
         if _SHARED is not None:

@@ -17,7 +17,7 @@ import pytest
 from app.machine.base import ControllerError, MachinePosition, WorkOffset
 from app.machine.linuxcnc import LinuxCncController
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.linuxcnc]
 
 
 @pytest.fixture

@@ -18,7 +18,7 @@ from app.planning.probing import ProbingParams, choose_touch_points
 from app.planning.probing_safety import KnownObstacle
 from app.planning.reference import ReferenceOptions
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.linuxcnc]
 
 
 @pytest.fixture(scope="module")
