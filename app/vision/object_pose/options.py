@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
 
+from app.vision.object_pose.search import COARSE_STEP_MAX_MM
 from app.vision.object_pose.uncertainty import (CONTACT_SIGMA_DEG, CONTACT_SIGMA_MM, RISER_SIGMA_MM,
                                                 SIGMA_SCALE)
 
@@ -57,7 +58,7 @@ class LocateOptions:
     n_refine: int = 3
     settle_starts: bool = False
     n_coarse: int = 40
-    coarse_step_max_mm: float = 16.0
+    coarse_step_max_mm: float = COARSE_STEP_MAX_MM
     max_edges: int = 60000
     sigma_scale: float = SIGMA_SCALE
     seed: int = 0

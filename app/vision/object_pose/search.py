@@ -110,6 +110,16 @@ def _support_maps(rays, C, z: float, extent_xy, b: float, n_channels: int, tau_b
     return sup
 
 
+#: the plane search's coarsest cell (mm): parts above 288 mm are searched on this grid (fixtures finer)
+COARSE_STEP_MAX_MM = 16.0
+
+
+def coarse_cell_mm(diameter_mm: float, max_mm: float = COARSE_STEP_MAX_MM) -> float:
+    """The plane search's coarse cell (mm): the part's size / 18, at least 1.5 mm, at most ``max_mm``
+    (the wide and mid scorers reach as far as this cell is coarse)."""
+    return float(np.clip(diameter_mm / 18.0, 1.5, max(1.5, max_mm)))
+
+
 def _spread_picks(crease: np.ndarray, max_n: int) -> np.ndarray:
     """At most ``max_n`` indices spread evenly over the samples, sorted, with at most a quarter of
     them on smooth edges when there are creases enough: a bore or a fillet is a dense bundle of
@@ -141,7 +151,7 @@ def edge_faces_of(model: PreparedModel, T_rest_obj: np.ndarray, sel: np.ndarray)
 def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, extent_xy,
                   n_peaks: int, *, px_mm: float, image_score, max_template: int = 400, n_coarse: int = 40,
                   cache: dict | None = None, image_score_wide=None, image_score_mid=None,
-                  coarse_step_max_mm: float = 16.0) -> list[Hyp]:
+                  coarse_step_max_mm: float = COARSE_STEP_MAX_MM) -> list[Hyp]:
     """Exhaustive oriented chamfer matching of the model's horizontal edges on the table planes.
 
     The image's edge pixels are cast onto each horizontal plane that carries model edges (height
@@ -188,7 +198,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         return P[sel, :2], np.arctan2(D[sel, 1], D[sel, 0]), P[sel, 2] + height_mm, w, sel
 
     # ---- coarse: correlation per theta
-    b = float(np.clip(diam / 18.0, 1.5, max(1.5, coarse_step_max_mm)))
+    b = coarse_cell_mm(diam, coarse_step_max_mm)
     b = max(b, max(x1 - x0, y1 - y0) / 250.0)
     nx = int(np.ceil((x1 - x0) / b)) + 1
     ny = int(np.ceil((y1 - y0) / b)) + 1
@@ -373,7 +383,7 @@ def _intersect(a, b):
 def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, height_offsets_mm=(0.0,),
             resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10,
             max_edges: int = 60000, rng=None, timings: dict | None = None, table_extent_xy=None,
-            n_coarse: int = 40, coarse_step_max_mm: float = 16.0):
+            n_coarse: int = 40, coarse_step_max_mm: float = COARSE_STEP_MAX_MM):
     """Stages 1 and 2: starts from the plane search, aligned in the table plane, best first.
     ``table_extent_xy`` (x0, x1, y0, y1 mm): where the part's centre can be (the table and a margin);
     the floor and the machine's walls in the background are not searched.
@@ -418,7 +428,7 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
         states = list(resting_states)
     hyps: list[Hyp] = []
     scorer = _image_scorer(eimg, K, dist, T_cam_table)
-    b_px = float(np.clip(model.diameter_mm / 18.0, 1.5, max(1.5, coarse_step_max_mm))) / max(px_mm, 1e-9)
+    b_px = coarse_cell_mm(model.diameter_mm, coarse_step_max_mm) / max(px_mm, 1e-9)
     scorer_wide = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(1.2 * b_px, 3.0, 20.0)))
     scorer_mid = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(0.6 * b_px, 2.5, 10.0)))
     planes = []
