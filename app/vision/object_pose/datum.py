@@ -27,8 +27,8 @@ def choose_datum(model: PreparedModel, T_table_obj: np.ndarray, score: float, sy
 
     sym_scores : (near symmetry, score of the pose turned by it) for each near symmetry tried
     flips : fits of the part turned over onto another face (same place); ``flips_open`` those within
-        twice ``min_margin`` of ``score`` (the face up is then not decided); ``flip_runner`` the best
-        of their scores
+        twice ``min_margin`` of ``score`` that do not leave clearly more of the image unexplained (the
+        face up is then not decided); ``flip_runner`` the best of their scores
     """
     exact = [s for s in model.symmetries if s.exact]
     listed = list(exact)
@@ -67,8 +67,33 @@ def choose_datum(model: PreparedModel, T_table_obj: np.ndarray, score: float, sy
                 f"this view, so which face is up is not decided; the turned-over pose is listed, confirm "
                 f"which one is meant")
         ambiguous = True
-        equivalent += tuple(r.T for r in flips_open)
+        # each turned-over pose with the turns that are not decided either (a square plate that may be
+        # upside down may as well be turned by 90 deg that way up: the true pose must be among those
+        # listed, or the operator can only choose a wrong one)
+        for r in flips_open:
+            turns = [np.eye(4)] + [s.S for s in listed
+                                   if s.exact or abs(float((r.T[:3, :3] @ s.axis_obj)[2])) > 0.99]
+            equivalent += tuple(r.T @ S for S in turns)
+    elif flips and flip_runner > score:
+        note += (f"; turned over onto another face it supports a higher share of its fewer visible edges "
+                 f"({flip_runner:.0%} against {score:.0%}) but leaves clearly more of the image inside its "
+                 f"outline unexplained: the face up is decided")
     elif flips:
         note += (f"; turned over onto another face it fits clearly worse ({flip_runner:.0%} against "
                  f"{score:.0%}): the face up is decided")
+    equivalent = _distinct_poses(equivalent, T_table_obj)
     return Datum(equivalent=equivalent, ambiguous=ambiguous, note=note)
+
+
+def _distinct_poses(poses: tuple, T_first: np.ndarray, tol_mm: float = 0.5, tol_deg: float = 0.5) -> tuple:
+    """``poses`` without repeats (within ``tol_mm`` and ``tol_deg``) and without ``T_first`` itself."""
+    kept: list = []
+    for T in poses:
+        if all(not _same_pose(T, U, tol_mm, tol_deg) for U in [T_first] + kept):
+            kept.append(T)
+    return tuple(kept)
+
+
+def _same_pose(T1: np.ndarray, T2: np.ndarray, tol_mm: float, tol_deg: float) -> bool:
+    c = np.clip((np.trace(T1[:3, :3].T @ T2[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    return bool(np.linalg.norm(T1[:3, 3] - T2[:3, 3]) < tol_mm and np.degrees(np.arccos(c)) < tol_deg)
