@@ -565,16 +565,17 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
     (table,) = library_candidates(session, files, [{"model_id": machine.table_model_id,
                                                     "revision": machine.table_revision}])
     layout = library.get_revision(session, machine.table_model_id, machine.table_revision).fiducials
+    # the table pose's covariance (the stored result keeps its sigmas only): the markers again
+    tp = locate_table(image, K, dist, layout or {}) if layout else None
     if cand.photo is not None:      # a photo model: its search, near the operator's pose
         ign = known_edge_mask(image.shape[:2], K, dist, result.T_cam_table, [(table.prepare(), np.eye(4))],
                               marker_labels_table(layout or {}))
-        # the table pose's covariance (the stored result keeps its sigmas only): the markers again
-        tp = locate_table(image, K, dist, layout or {}) if layout else None
         view = View(image, K, dist, result.T_cam_table, ign, *((tp.covariance, tp.centroid_table_mm) if tp else ()))
         pose = locate_near(view, cand.photo, cand.name, obj.pose)
     else:
         pose = object_pose.locate_object(image, K, dist, result.T_cam_table, cand.prepare(),
                                          start_poses=[obj.pose],
+                                         table_covariance=(tp.covariance, tp.centroid_table_mm) if tp else None,
                                          known_models=((table.prepare(), np.eye(4)),),
                                          known_regions=marker_labels_table(layout or {}))
     if not pose:

@@ -224,7 +224,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
             rec = object_pose.recognise(image, K, dist, T_cam_table, [c.prepare() for c in cad],
                                         min_score=max(min_score, 0.6), min_margin=min_margin,
                                         height_offsets_mm=height_offsets_mm, known_models=known,
-                                        free_height=free_height, known_regions=labels)
+                                        free_height=free_height, known_regions=labels,
+                                        table_covariance=(table.covariance, table.centroid_table_mm))
             accepted += list(rec.accepted)
             ranked += list(rec.ranked)
             if not rec:
@@ -260,6 +261,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                 occluders = [(c.prepare(), p.T_table_obj) for c, p in located
                              if isinstance(p, object_pose.ObjectPose)]
                 pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(),
+                                                 table_covariance=(table.covariance, table.centroid_table_mm),
                                                  occluder_models=occluders, min_score=min_score,
                                                  min_margin=min_margin, height_offsets_mm=height_offsets_mm,
                                                  known_models=known, free_height=free_height, known_regions=labels)
@@ -425,6 +427,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
         else:
             pose = object_pose.locate_object(
                 image, K, dist, T_cam_table, model, occluder_models=occ, table_extent_xy=table_xy,
+                table_covariance=(table.covariance, table.centroid_table_mm),
                 min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin,
                 height_offsets_mm=tuple(planes), free_height=not fixture, known_models=kn, known_regions=labels,
                 known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
@@ -455,7 +458,9 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
                 derived = support_surfaces(cand.mesh, pose.T_table_obj, cand.name)
                 seats += derived
                 # a part between its jaws will be held by its faces
-                jaw_faces += fixture_faces(cand.mesh, pose.T_table_obj, cand.name, pose.covariance)
+                # (the part and the jaw share the table's error: the face holds by the jaw's own sigma)
+                own = pose.covariance if pose.table_covariance is None else pose.covariance - pose.table_covariance
+                jaw_faces += fixture_faces(cand.mesh, pose.T_table_obj, cand.name, own)
                 surfaces += (derived if cand.support_surfaces is None
                              else declared_surfaces(cand.support_surfaces, pose.T_table_obj, cand.name))
         _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table,

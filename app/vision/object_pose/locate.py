@@ -46,6 +46,7 @@ from app.vision.object_pose.uncertainty import (
     hull_points,
     origin_sigma,
     prior_offsets,
+    table_covariance,
     unknown_height_covariance,
 )
 from app.vision.object_pose.verify import same_up_to_symmetry, unexplained_edges
@@ -55,7 +56,7 @@ from app.vision.object_pose.verify import same_up_to_symmetry, unexplained_edges
 def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options: LocateOptions | None = None,
                   occluder_models=(), known_models=(), known_regions=(), edge_image: EdgeImage | None = None,
                   start_poses=None, start_capture=None, known_heights_mm=None, table_extent_xy=None, clamp_faces=(),
-                  keep_pose=None, **option_changes):
+                  keep_pose=None, table_covariance=None, **option_changes):
     """Locate one part on the table. Returns :class:`ObjectPose` or :class:`ObjectFailure`.
 
     Parameters
@@ -86,6 +87,9 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
     keep_pose : ``T_table_obj -> bool``: where the object can be at all (a vise's moving jaw on its
         guide); aligned starts and fine fits elsewhere are dropped before they compete (the local
         search around a start slides onto any edges within its reach)
+    table_covariance : ``(cov, centroid_table_mm)`` of the table pose
+        (:class:`app.vision.fiducials.TablePose`): its error enters the stated sigma
+        (:func:`.uncertainty.table_covariance`); None: ``T_cam_table`` is taken as exact
 
     The pose is fitted lying flat (x, y, rotation about the table normal; height on unknown risers),
     then once more in 6 DoF with the contact prior (maximum a-posteriori): that is the pose returned,
@@ -101,7 +105,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
                              candidates=tuple(cands), timings_ms=dict(timings))
 
     ctx = _context(image, K, dist, T_cam_table, model, opts, occluder_models, known_models, known_regions,
-                   edge_image, known_heights_mm, timings, tuple(clamp_faces))
+                   edge_image, known_heights_mm, timings, tuple(clamp_faces), table_covariance)
     if isinstance(ctx, tuple):
         return fail(*ctx)
     found = _find(ctx, start_poses, table_extent_xy, start_capture)        # stages 1 and 2
@@ -182,6 +186,7 @@ class LocateContext:
     min_contrast: float
     hull_obj: np.ndarray
     clamp_faces: tuple = ()
+    table_cov: tuple | None = None      # (6x6, centroid) of the table pose, see locate_object
     px_per_mm: float = 1.0
     _sub_fine: np.ndarray | None = field(default=None, repr=False)
     _unexplained: dict = field(default_factory=dict, repr=False)
@@ -247,7 +252,7 @@ class LocateContext:
 
 
 def _context(image, K, dist, T_cam_table, model, opts, occluder_models, known_models, known_regions,
-             edge_image, known_heights_mm, timings, clamp_faces=()):
+             edge_image, known_heights_mm, timings, clamp_faces=(), table_cov=None):
     """The image prepared (edges of known geometry removed) and the call's fixed inputs checked;
     or ``(kind, reason)`` of a failure."""
     K = np.asarray(K, dtype=float)
@@ -271,7 +276,8 @@ def _context(image, K, dist, T_cam_table, model, opts, occluder_models, known_mo
         eimg=eimg, K=K, dist=dist, T_cam_table=T_cam_table, model=model, opts=opts,
         occluders_cam=tuple((m, T_cam_table @ np.asarray(T, float)) for m, T in occluder_models),
         known_heights_mm=None if known_heights_mm is None else tuple(known_heights_mm), timings=timings,
-        min_contrast=max(0.01, 6.0 * eimg.noise_linear), hull_obj=hull_points(model), clamp_faces=clamp_faces)
+        min_contrast=max(0.01, 6.0 * eimg.noise_linear), hull_obj=hull_points(model), clamp_faces=clamp_faces,
+        table_cov=table_cov)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -619,7 +625,10 @@ def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, di
     cov, inl, rms = cov6_full if info is info6 else covariance(info, K, dist, ctx.T_cam_table, data_scale=o.sigma_scale)
     if cf.conflict:
         cov = cov + unknown_height_covariance(T_table_obj, model, ctx.T_cam_table, o.riser_sigma_mm)
-    cov_o, sigma = origin_sigma(cov, T_table_obj, model)
+    cov_table = np.zeros((6, 6))
+    if ctx.table_cov is not None:           # the frame the pose is given in is itself measured
+        cov_table = table_covariance(info, K, dist, ctx.T_cam_table, *ctx.table_cov, data_scale=o.sigma_scale)
+    cov_o, sigma = origin_sigma(cov + cov_table, T_table_obj, model)
     if "sol" not in info6 or cf.conflict:     # height and tilt not measured, only assumed
         sigma.update(z_mm=float("nan"), rx_deg=float("nan"), ry_deg=float("nan"))
     # the spin of a round part about its own axis is not seen: undetermined, a datum question
@@ -659,5 +668,6 @@ def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, di
         held_by=tuple(c.name for c in cf.prior[4]) if len(cf.prior) > 4 and not cf.conflict else (),
         margin=float(rv.margin), runner_up_score=float(rv.runner),
         distinctiveness=distinct_drop, covariance=cov_o,
+        table_covariance=origin_sigma(cov_table, T_table_obj, model)[0],
         equivalent_poses=datum.equivalent, datum_ambiguous=datum.ambiguous, datum_note=datum.note,
         flags=tuple(flags), timings_ms=dict(ctx.timings))

@@ -64,6 +64,9 @@ class ObjectPose:
     held_by: tuple = ()        # fixtures whose faces hold it in the final fit (vise jaws: .clamping)
     guided_by: str | None = None   # the fixture whose guide it was searched along (a vise's moving jaw)
     covariance: np.ndarray | None = None   # 6x6 of (origin x, y, z mm, rotation vector rad), table axes
+    # the table pose's share of ``covariance`` (shared by every object in the picture: what one object
+    # is known to relative to another, a part to its vise's jaw, leaves it out)
+    table_covariance: np.ndarray | None = None
     photo: dict | None = None  # a photo model's match (app/vision/photo_model/): edge IoU, unexplained edges
 
     def __bool__(self) -> bool:
@@ -93,6 +96,8 @@ class ObjectPose:
             "held_by": list(self.held_by),
             "guided_by": self.guided_by,
             "cov6": None if self.covariance is None else np.where(np.isfinite(self.covariance), self.covariance, 0.0).tolist(),
+            "cov6_table": None if self.table_covariance is None else
+            np.where(np.isfinite(self.table_covariance), self.table_covariance, 0.0).tolist(),
             "margin": None if not np.isfinite(self.margin) else self.margin,
             "runner_up_score": None if not np.isfinite(self.runner_up_score) else self.runner_up_score,
             "distinctiveness": self.distinctiveness,

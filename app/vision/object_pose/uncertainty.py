@@ -74,31 +74,12 @@ def covariance(info: dict, K, dist, T_cam_table, data_scale: float = 1.0) -> tup
     """6x6 covariance of p = (t mm at the part's centre, rotation vector rad) from the last solve
     over the robust inliers (zero rows/columns for parameters held fixed): the classical
     ``(J^T J)^-1 s^2`` plus the cluster-robust term for errors shared along each model edge."""
-    sol, free, pin = info["sol"], info["free"], info["pin"]
-    X, n, target, T0, c_table = info["X"], info["n"], info["target"], info["T0"], info["c_table"]
-    p = np.zeros(6)
-    p[free] = sol.x
-
-    def raw(pp):
-        uv = project_points_px(transform_points(T_cam_table @ perturb(T0, c_table, pp), X), K, dist)
-        return np.einsum("ij,ij->i", n, uv - target)
-
-    r = raw(p)
-    scale = 1.4826 * float(np.median(np.abs(r))) + 1e-9
-    inl = np.abs(r) < max(3.0 * scale, 0.3)
-    J = np.zeros((len(r), 6))
-    for k in free:
-        h = 1e-3 if k < 3 else 1e-6
-        dp = np.zeros(6)
-        dp[k] = h
-        J[:, k] = (raw(p + dp) - raw(p - dp)) / (2 * h)
+    free = info["free"]
+    p, r, inl, J = _linearised(info, K, dist, T_cam_table)
     Ji, ri = J[inl][:, free], r[inl]
     m = len(ri)
     s2 = float(ri @ ri) / max(m - len(free), 1)
-    A = Ji.T @ Ji
-    if pin is not None:
-        a = np.concatenate([np.zeros(3), pin])[free]
-        A = A + 1e8 * np.outer(a, a)
+    A = _information(info, Ji)
     Ainv = np.linalg.pinv(A)
     cov_iid = Ainv * s2
     # samples along one model edge share its errors (blur, shading, tessellation): cluster-robust
@@ -112,20 +93,110 @@ def covariance(info: dict, K, dist, T_cam_table, data_scale: float = 1.0) -> tup
     G *= n_cl / max(n_cl - len(free), 1)          # small-sample correction
     cov_cl = Ainv @ G @ Ainv
     cov_f = (cov_cl + cov_iid) * data_scale ** 2   # the image's share, calibrated; the prior is physical
-    prior = info.get("prior")
-    if prior is not None:         # prior information on height and tilt (MAP): add it, invert back
-        Jp = np.zeros((len(prior_offsets(T0, prior)), 6))
-        for k in free:
-            h = 1e-3 if k < 3 else 1e-6
-            dp = np.zeros(6)
-            dp[k] = h
-            Jp[:, k] = (prior_offsets(perturb(T0, c_table, p + dp), prior)
-                        - prior_offsets(perturb(T0, c_table, p - dp), prior)) / (2 * h)
-        P = (Jp.T @ Jp)[np.ix_(free, free)]
+    P = _prior_information(info, p)
+    if P is not None:             # prior information on height and tilt (MAP): add it, invert back
         cov_f = np.linalg.pinv(np.linalg.pinv(cov_f) + P)
     cov = np.zeros((6, 6))
     cov[np.ix_(free, free)] = cov_f
     return cov, inl, float(np.sqrt(np.mean(ri ** 2))) if m else float("nan")
+
+
+def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, centroid_table_mm,
+                     data_scale: float = 1.0) -> np.ndarray:
+    """6x6 covariance (as :func:`covariance`: about the part's centre, table axes) that the table
+    pose's own error gives the fitted pose.
+
+    The part is fitted in the image and expressed in the table frame found from the markers: an
+    error of that frame (``table_cov``, :class:`app.vision.fiducials.TablePose`'s 6x6 of rotation
+    about the table axes rad and shift mm at ``centroid_table_mm``) moves the fitted pose by
+    ``B e`` with ``B = -H^-1 J^T M / s^2`` (``M``: how the edge residuals change with the frame's
+    error, ``H``: the fit's information with its contact prior, which holds the part on the
+    surface as the frame says). Shared by every object in the picture, it is not in the edge
+    residuals' scatter, so no calibration of those covers it: with 2 markers the frame alone put
+    devset setup_014's part 0.39 mm off in x. Zero where the fit has no solution or no table
+    covariance is known."""
+    S = np.asarray(table_cov, float)
+    if "sol" not in info or S.shape != (6, 6) or not np.all(np.isfinite(S)):
+        return np.zeros((6, 6)) if "sol" not in info or S.shape != (6, 6) else np.full((6, 6), np.inf)
+    free = info["free"]
+    p, r, inl, J = _linearised(info, K, dist, T_cam_table)
+    Ji, ri = J[inl][:, free], r[inl]
+    s2 = max(float(ri @ ri) / max(len(ri) - len(free), 1), 1e-12) * data_scale ** 2
+    c = np.asarray(centroid_table_mm, float)
+    M = np.zeros((int(inl.sum()), 6))
+    for k in range(6):
+        h = 1e-6 if k < 3 else 1e-3
+        e = np.zeros(6)
+        e[k] = h
+        M[:, k] = (_raw(info, p, K, dist, T_cam_table @ _table_error(e, c))[inl]
+                   - _raw(info, p, K, dist, T_cam_table @ _table_error(-e, c))[inl]) / (2 * h)
+    H = _information(info, Ji) / s2
+    P = _prior_information(info, p)
+    if P is not None:
+        H = H + P
+    B = -np.linalg.pinv(H) @ (Ji.T @ M) / s2
+    cov = np.zeros((6, 6))
+    cov[np.ix_(free, free)] = B @ S @ B.T
+    return cov
+
+
+def _table_error(e: np.ndarray, centroid: np.ndarray) -> np.ndarray:
+    """``E`` with ``T_cam_table_wrong = T_cam_table @ E``: rotation ``e[:3]`` (rad, table axes) about
+    ``centroid`` and shift ``e[3:]`` (mm), as :func:`app.vision.fiducials.locate_table` fits it."""
+    E = np.eye(4)
+    R = Rotation.from_rotvec(e[:3]).as_matrix()
+    E[:3, :3] = R
+    E[:3, 3] = centroid - R @ centroid + e[3:]
+    return E
+
+
+def _raw(info: dict, p: np.ndarray, K, dist, T_cam_table) -> np.ndarray:
+    """Edge residuals (px along the edge normals) of the fit's samples at parameters ``p``."""
+    uv = project_points_px(transform_points(T_cam_table @ perturb(info["T0"], info["c_table"], p), info["X"]), K, dist)
+    return np.einsum("ij,ij->i", info["n"], uv - info["target"])
+
+
+def _linearised(info: dict, K, dist, T_cam_table):
+    """(p, residuals, robust inliers, Jacobian (N, 6) with zero columns for fixed parameters) at the
+    fit's solution."""
+    free = info["free"]
+    p = np.zeros(6)
+    p[free] = info["sol"].x
+    r = _raw(info, p, K, dist, T_cam_table)
+    scale = 1.4826 * float(np.median(np.abs(r))) + 1e-9
+    inl = np.abs(r) < max(3.0 * scale, 0.3)
+    J = np.zeros((len(r), 6))
+    for k in free:
+        h = 1e-3 if k < 3 else 1e-6
+        dp = np.zeros(6)
+        dp[k] = h
+        J[:, k] = (_raw(info, p + dp, K, dist, T_cam_table) - _raw(info, p - dp, K, dist, T_cam_table)) / (2 * h)
+    return p, r, inl, J
+
+
+def _information(info: dict, Ji: np.ndarray) -> np.ndarray:
+    """``J^T J`` over the free parameters, a round part's unobservable spin pinned."""
+    A = Ji.T @ Ji
+    if info["pin"] is not None:
+        a = np.concatenate([np.zeros(3), info["pin"]])[info["free"]]
+        A = A + 1e8 * np.outer(a, a)
+    return A
+
+
+def _prior_information(info: dict, p: np.ndarray) -> np.ndarray | None:
+    """Information (free x free) of the contact prior at ``p``, or None without a prior."""
+    prior, free = info.get("prior"), info["free"]
+    if prior is None:
+        return None
+    T0, c_table = info["T0"], info["c_table"]
+    Jp = np.zeros((len(prior_offsets(T0, prior)), 6))
+    for k in free:
+        h = 1e-3 if k < 3 else 1e-6
+        dp = np.zeros(6)
+        dp[k] = h
+        Jp[:, k] = (prior_offsets(perturb(T0, c_table, p + dp), prior)
+                    - prior_offsets(perturb(T0, c_table, p - dp), prior)) / (2 * h)
+    return (Jp.T @ Jp)[np.ix_(free, free)]
 
 
 def origin_sigma(cov: np.ndarray, T_table_obj: np.ndarray, model: PreparedModel) -> tuple[np.ndarray, dict]:

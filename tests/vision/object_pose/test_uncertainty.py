@@ -48,3 +48,72 @@ def test_an_unknown_height_leaves_x_and_y_unknown_along_the_line_of_sight():
     assert C[1, 1] == pytest.approx(225.0 * slide_y ** 2, rel=1e-9)
     assert C[1, 2] == pytest.approx(225.0 * slide_y, rel=1e-9)
     assert np.all(C[3:, :] == 0)
+
+
+def _edge_fit_info(prior=None, noise_px: float = 0.05):
+    """A converged edge fit as :func:`refine_pose` leaves it: 40 mm box edges seen from a camera
+    600 mm away, exact targets plus a little noise, all six parameters free."""
+    from types import SimpleNamespace
+
+    from app.geometry.model_edges import project_points_px
+    from app.geometry.transforms import transform_points
+    from app.synth.scene import look_at_pose
+
+    rng = np.random.default_rng(3)
+    t = np.linspace(-20.0, 20.0, 9)
+    X = np.concatenate([np.column_stack([t, np.full_like(t, s), np.full_like(t, h)]) for s in (-20.0, 20.0)
+                        for h in (0.0, 30.0)] + [np.column_stack([np.full_like(t, s), t, np.full_like(t, h)])
+                                                 for s in (-20.0, 20.0) for h in (0.0, 30.0)]
+                       + [np.column_stack([np.full_like(t, sx), np.full_like(t, sy), 15.0 + 0.7 * t])
+                          for sx in (-20.0, 20.0) for sy in (-20.0, 20.0)])
+    edge = np.repeat(np.arange(12), len(t))
+    ang = rng.uniform(0, np.pi, 12)[edge]
+    n = np.column_stack([np.cos(ang), np.sin(ang)])
+    T0 = pose_from_xyz_euler(500.0, 150.0, 0.0, 0.0, 0.0, 20.0)
+    T_cam_table = look_at_pose(np.array([300.0, -300.0, 500.0]), np.array([450.0, 150.0, 0.0]))
+    K = np.array([[1400.0, 0.0, 960.0], [0.0, 1400.0, 600.0], [0.0, 0.0, 1.0]])
+    target = project_points_px(transform_points(T_cam_table @ T0, X), K, None)
+    target += noise_px * rng.standard_normal((len(X), 1)) * n
+    c_table = T0[:3, 3] + np.array([0.0, 0.0, 15.0])
+    info = {"sol": SimpleNamespace(x=np.zeros(6)), "free": np.arange(6), "pin": None, "prior": prior, "X": X,
+            "n": n, "target": target, "T0": T0, "c_table": c_table, "edge": edge}
+    return info, K, T_cam_table
+
+
+def test_a_table_error_moves_a_freely_fitted_part_as_the_frame_moves():
+    """Seen exactly and fitted in all six axes, a part in a table frame that is off by E is found at
+    inv(E) @ T: the table term's linear map B must give that pose (the sigma then is B S B^T)."""
+    from scipy.spatial.transform import Rotation
+
+    from app.vision.object_pose.pose_params import perturb
+    from app.vision.object_pose.uncertainty import _table_error, table_covariance
+
+    info, K, T_cam_table = _edge_fit_info()
+    centroid = np.array([100.0, 100.0, 0.0])                 # the markers' centroid, 400 mm away
+    e = np.array([2e-4, -1e-4, 3e-4, 0.05, -0.03, 0.02])     # rad about the table axes, mm
+    S = np.outer(e, e)                                       # a covariance whose only direction is e
+    C = table_covariance(info, K, None, T_cam_table, S, centroid)
+    # C = (B e)(B e)^T: compare the pose B e gives with inv(E) @ T
+    expected = inv(_table_error(e, centroid)) @ info["T0"]
+    D, c = expected @ inv(info["T0"]), info["c_table"]          # expected = perturb(T0, c, want)
+    want = np.concatenate([D[:3, 3] - c + D[:3, :3] @ c, Rotation.from_matrix(D[:3, :3]).as_rotvec()])
+    np.testing.assert_allclose(perturb(info["T0"], info["c_table"], want), expected, atol=1e-9)
+    np.testing.assert_allclose(C, np.outer(want, want), rtol=0.02, atol=1e-7)
+
+
+def test_a_part_held_on_the_table_follows_its_frame_in_height_and_tilt():
+    """The contact prior holds the part on the surface as the frame says: a frame that is off in
+    height carries the part with it (no height error in that frame), and no table covariance, or
+    none known, gives no term."""
+    from app.vision.object_pose.uncertainty import table_covariance
+
+    free_info, K, T_cam_table = _edge_fit_info()
+    box = np.array([[sx, sy, h] for sx in (-20.0, 20.0) for sy in (-20.0, 20.0) for h in (0.0, 30.0)])
+    held_info, _, _ = _edge_fit_info(prior=(free_info["T0"], 0.01, np.radians(0.01), box))
+    S = np.diag([0.0, 0.0, 0.0, 0.0, 0.0, 0.1 ** 2])            # the frame known to 0.1 mm in height only
+    C_free = table_covariance(free_info, K, None, T_cam_table, S, np.zeros(3))
+    C_held = table_covariance(held_info, K, None, T_cam_table, S, np.zeros(3))
+    assert np.sqrt(C_free[2, 2]) == pytest.approx(0.1, rel=0.02)
+    assert np.sqrt(C_held[2, 2]) < 0.01
+    assert np.all(table_covariance(held_info, K, None, T_cam_table, np.zeros((6, 6)), np.zeros(3)) == 0)
+    assert np.all(np.isinf(table_covariance(held_info, K, None, T_cam_table, np.full((6, 6), np.nan), np.zeros(3))))
