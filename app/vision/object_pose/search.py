@@ -233,6 +233,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     # height: planes searched one after the other on the same grid (the risers) share them
     kernels = _kernel_cache(cache, (m_xy.tobytes(), m_phi.tobytes(), wts.tobytes(), lvl_of.tobytes(),
                                     nt, dth, b, Rk, nch, nlc, Py, Px))
+    FS_of: dict = {}
     for it in range(nt):
         if it == len(kernels):
             th = it * dth
@@ -245,7 +246,10 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
             used = np.nonzero(ker.reshape(nlc, -1).any(axis=1))[0]
             kernels.append((used, np.conj(sfft.rfft2(ker[used], s=(Py, Px), workers=-1))))
         used, FKc = kernels[it]
-        corr = sfft.irfft2(np.einsum("kij,kij->ij", FS[used], FKc), s=(Py, Px), workers=-1)
+        FS_used = FS_of.get(used.tobytes())
+        if FS_used is None:              # the turns use few distinct sets of channels
+            FS_used = FS_of[used.tobytes()] = FS[used]
+        corr = sfft.irfft2(np.einsum("kij,kij->ij", FS_used, FKc), s=(Py, Px), workers=-1)
         score[it] = np.roll(corr, (Rk, Rk), axis=(0, 1))[:ny, :nx]
     flat = score.ravel()
     k = min(len(flat), 20 * n_coarse)
