@@ -266,7 +266,10 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     # (wide soft chamfer score with exact perspective), keeping the best n_coarse of both
     if image_score_wide is not None and nt > 1:
         k_t = 4
-        loc = (score == ndimage.maximum_filter(score, size=(1, 3, 3), mode="nearest")) & (score > 0)
+        # a turn's 3 x 3 maxima (OpenCV's dilation: the same maximum as scipy's with the border
+        # repeated, ten times faster)
+        peak = np.stack([cv2.dilate(sl, np.ones((3, 3), np.uint8)) for sl in score])
+        loc = (score == peak) & (score > 0)
         flat_t = np.where(loc, score, -np.inf).reshape(nt, -1)
         top_t = np.argpartition(-flat_t, k_t - 1, axis=1)[:, :k_t]
         it2 = np.repeat(np.arange(nt), k_t)
