@@ -155,3 +155,19 @@ def test_planes_on_one_grid_reuse_the_template_spectra_and_find_the_same_starts(
     assert len(shared) == len(alone) > 0
     for a, b in zip(alone, shared):
         assert np.array_equal(a.T_table_obj, b.T_table_obj) and a.votes == b.votes
+
+
+def test_padded_template_spectra_are_rfft2s():
+    """The coarse template's spectrum from its non-zero rows (:func:`_padded_rfft2`) is rfft2's."""
+    from scipy import fft as sfft
+
+    from app.vision.object_pose.search import _padded_rfft2
+
+    rng = np.random.default_rng(0)
+    for n, k, Py, Px in ((8, 23, 270, 180), (3, 9, 64, 50), (5, 23, 257, 199), (2, 31, 20, 40)):   # the last crops
+        ker = np.zeros((n, k, k), np.float32)
+        np.add.at(ker, (rng.integers(0, n, 300), rng.integers(0, k, 300), rng.integers(0, k, 300)),
+                  rng.choice([0.5, 1.0], 300).astype(np.float32))
+        want = sfft.rfft2(ker, s=(Py, Px))
+        got = _padded_rfft2(ker, Py, Px)
+        assert got.dtype == want.dtype and np.array_equal(got, want)
