@@ -235,7 +235,9 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
                                     nt, dth, b, Rk, nch, nlc, Py, Px))
     FS_of: dict = {}
     for it in range(nt):
-        if it == len(kernels):
+        if it < len(kernels):
+            used, FKc = kernels[it]
+        else:
             th = it * dth
             c, s = np.cos(th), np.sin(th)
             kx = np.rint((c * m_xy[:, 0] - s * m_xy[:, 1]) / b + Rk).astype(np.int64)
@@ -244,8 +246,9 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
             ker = np.zeros((nlc, ks, ks), np.float32)
             np.add.at(ker, (lvl_of * nch + chn, ky, kx), wts.astype(np.float32))
             used = np.nonzero(ker.reshape(nlc, -1).any(axis=1))[0]
-            kernels.append((used, np.conj(_padded_rfft2(ker[used], Py, Px))))
-        used, FKc = kernels[it]
+            FKc = np.conj(_padded_rfft2(ker[used], Py, Px))
+            if it == len(kernels) and sum(f.nbytes for _, f in kernels) < KERNEL_CACHE_BYTES:
+                kernels.append((used, FKc))
         FS_used = FS_of.get(used.tobytes())
         if FS_used is None:              # the turns use few distinct sets of channels
             FS_used = FS_of[used.tobytes()] = FS[used]
@@ -401,11 +404,17 @@ def _padded_rfft2(ker: np.ndarray, Py: int, Px: int) -> np.ndarray:
     return sfft.fft(out, axis=-2, workers=-1, overwrite_x=True)
 
 
+#: at most this much memory (bytes) holds a template's spectra for the next plane (measured: up to
+#: 136 MB for a workpiece on the devset's table); the turns beyond it are transformed per plane
+KERNEL_CACHE_BYTES = 256 * 2 ** 20
+
+
 def _kernel_cache(cache: dict, key: tuple) -> list:
     """The list of (used channels, conjugate spectrum) per turn of the coarse template described by
     ``key``, kept in ``cache`` (the image's) for the next plane searched with the same template and
-    grid; empty for a new one (the caller fills it). Only the last template is kept: planes of one
-    resting state follow one another, and a template's spectra take tens of MB."""
+    grid; empty for a new one (the caller fills it, up to :data:`KERNEL_CACHE_BYTES`). Only the last
+    template is kept: planes of one resting state follow one another, and a template's spectra take
+    tens of MB."""
     held = cache.get("coarse_kernels")
     if held is None or held[0] != key:
         held = (key, [])

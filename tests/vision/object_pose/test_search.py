@@ -128,7 +128,7 @@ def test_the_batched_image_scorer_gives_each_pose_its_own_score():
     assert got[0] > 0.3 and got[0] >= np.max(got) - 1e-9       # the true pose scores best (measured 0.49)
 
 
-def test_planes_on_one_grid_reuse_the_template_spectra_and_find_the_same_starts():
+def test_planes_on_one_grid_reuse_the_template_spectra_and_find_the_same_starts(monkeypatch):
     """The coarse search's rotated-template spectra kept from one plane for the next on the same
     grid (the risers): the starts are those of a search that made its own."""
     from app.geometry.transforms import inv
@@ -154,6 +154,14 @@ def test_planes_on_one_grid_reuse_the_template_spectra_and_find_the_same_starts(
     assert cache["coarse_kernels"][1] is spectra                     # reused, not made again
     assert len(shared) == len(alone) > 0
     for a, b in zip(alone, shared):
+        assert np.array_equal(a.T_table_obj, b.T_table_obj) and a.votes == b.votes
+    # with room for the first turn's spectra only, the others are made per plane: the same starts
+    monkeypatch.setattr("app.vision.object_pose.search.KERNEL_CACHE_BYTES", 1)
+    cache = {}
+    search(0.0, cache)
+    assert len(cache["coarse_kernels"][1]) == 1
+    capped = search(7.5, cache)
+    for a, b in zip(alone, capped):
         assert np.array_equal(a.T_table_obj, b.T_table_obj) and a.votes == b.votes
 
 
