@@ -210,6 +210,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         photo_view = View.of(image, K, dist, table, known_edge_mask(image.shape[:2], K, dist, T_cam_table,
                                                                     list(known), labels))
     table_xy = _table_xy(table_model, table_layout)
+    edges = _edges_once(image)
     # --- objects: clamps first (they occlude the workpiece), then workpieces
     ordered = sorted(candidates, key=lambda c: 0 if c.kind == "clamp" else 1)
     located: list[tuple[Candidate, Any]] = []
@@ -250,7 +251,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     elif chain:
         located, not_found = _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done,
                                            min_score=min_score, min_margin=min_margin, photo_view=photo_view,
-                                           photo_xy=table_xy)
+                                           photo_xy=table_xy, edges=edges)
     else:
         for cand in ordered:
             t = time.perf_counter()
@@ -260,7 +261,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
             else:
                 occluders = [(c.prepare(), p.T_table_obj) for c, p in located
                              if isinstance(p, object_pose.ObjectPose)]
-                pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(),
+                pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(), edge_image=edges(),
                                                  table_covariance=(table.covariance, table.centroid_table_mm),
                                                  occluder_models=occluders, min_score=min_score,
                                                  min_margin=min_margin, height_offsets_mm=height_offsets_mm,
@@ -364,8 +365,23 @@ def _merge_by_place(cad: list, photo: list, by_name: dict, min_margin: float) ->
     return out, lost
 
 
+def _edges_once(image: np.ndarray) -> Callable[[], object_pose.EdgeImage]:
+    """The image's edges (:func:`object_pose.prepare_image` as :func:`object_pose.locate_object` makes
+    them), made on the first call and shared by every object searched in it: each object's search
+    then masks its own known geometry out of a copy, and the per-image caches (the table's mask, the
+    scorers' maps) are kept in it for the next object."""
+    held: list = []
+
+    def get() -> object_pose.EdgeImage:
+        if not held:
+            held.append(object_pose.prepare_image(image, gamma=object_pose.LocateOptions().gamma))
+        return held[0]
+
+    return get
+
+
 def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done, *, min_score, min_margin,
-                  photo_view: View | None = None, photo_xy=None):
+                  photo_view: View | None = None, photo_xy=None, edges: Callable | None = None):
     """The support chain: fixtures first (biggest first, each on the surfaces found so far, standing
     as modelled; a guided one after its carrier and only along its guide there), then every workpiece
     on all support surfaces and over risers of unknown height, with the located fixtures' edges
@@ -428,6 +444,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
             pose = object_pose.locate_object(
                 image, K, dist, T_cam_table, model, occluder_models=occ, table_extent_xy=table_xy,
                 table_covariance=(table.covariance, table.centroid_table_mm),
+                edge_image=None if edges is None else edges(),
                 min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin,
                 height_offsets_mm=tuple(planes), free_height=not fixture, known_models=kn, known_regions=labels,
                 known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),

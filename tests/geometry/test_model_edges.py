@@ -120,3 +120,16 @@ def test_hidden_lines_of_a_concave_part():
     assert np.any(P0[:, 0] > 16)            # back-face culling alone keeps some foot edges
     assert len(with_z.index) > 20
     assert not np.any(P[:, 0] > 16)         # the z-buffer hides them all
+
+
+def test_project_points_with_every_coefficient_count_matches_opencv():
+    """The rational and thin-prism terms are left out where their coefficients are 0: with them set
+    (8 and 12 coefficients) and without (the same model padded with zeros) the pixels are OpenCV's."""
+    rng = np.random.default_rng(1)
+    P = rng.uniform([-300, -200, 500], [300, 200, 1500], (50, 3))
+    for dist in ([-0.12, 0.08, 4e-4, -3e-4, -0.02, 0.01, -0.003, 0.002],
+                 [-0.12, 0.08, 4e-4, -3e-4, -0.02, 0.0, 0.0, 0.0, 1e-3, -2e-4, 5e-4, 1e-4],
+                 [-0.12, 0.08, 4e-4, -3e-4, -0.02, 0.0, 0.0, 0.0]):
+        d = np.array(dist)
+        ref, _ = cv2.projectPoints(P, np.zeros(3), np.zeros(3), K, d)
+        np.testing.assert_allclose(project_points_px(P, K, d), ref.reshape(-1, 2), atol=1e-9)

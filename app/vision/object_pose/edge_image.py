@@ -85,6 +85,21 @@ def _edge_image(lin, edges, angle, mag, noise_lin) -> EdgeImage:
                      cache={"angle_full": angle, "mag_full": mag})
 
 
+def nearest_edge_maps(eimg: EdgeImage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel (flattened, index ``v * width + u``): distance to the nearest edge pixel (px), and
+    cos and sin of that edge pixel's gradient direction; made once per image and kept in its cache.
+    The same numbers as ``cos(edge_angle[nearest[v, u]])``, looked up in one step by every scorer."""
+    if "nearest_edge_maps" not in eimg.cache:
+        if len(eimg.edge_angle):
+            near = eimg.nearest.ravel()
+            cos_a, sin_a = np.cos(eimg.edge_angle)[near], np.sin(eimg.edge_angle)[near]
+        else:                           # no edges: direction 0, as the scorers took it
+            zero = np.zeros(eimg.width * eimg.height, np.float32)
+            cos_a, sin_a = np.cos(zero), np.sin(zero)
+        eimg.cache["nearest_edge_maps"] = (eimg.dist_px.ravel(), cos_a, sin_a)
+    return eimg.cache["nearest_edge_maps"]
+
+
 def mask_known_edges(eimg: EdgeImage, known: list[tuple[PreparedModel, np.ndarray]], K, dist,
                      width_px: float = 1.5) -> EdgeImage:
     """A copy of ``eimg`` without the edge pixels that known geometry explains.
@@ -98,11 +113,18 @@ def mask_known_edges(eimg: EdgeImage, known: list[tuple[PreparedModel, np.ndarra
     dist = np.zeros(5) if dist is None else np.asarray(dist, float).ravel()
     mask = np.zeros(eimg.edges.shape, np.uint8)
     for model, T_cam_model in known:
-        es = visible_edge_samples(model, np.asarray(T_cam_model, float), K, dist, eimg.width, eimg.height,
-                                  max_buffer_px=1200)
-        step = max(1, int(np.ceil(len(es.uv_px) / 400000)))
-        for u, v in np.rint(es.uv_px[::step] * 4).astype(np.int64):
-            cv2.circle(mask, (int(u), int(v)), int(round(width_px * 4)), 255, -1, shift=2)
+        T_cam_model = np.asarray(T_cam_model, float)
+        # each model's share of the mask is kept in the image's cache: the objects searched one after
+        # the other in one image all mask the table (and the fixtures located before them)
+        key = ("known_mask", id(model), T_cam_model.tobytes(), K.tobytes(), dist.tobytes(), float(width_px))
+        if key not in eimg.cache:
+            one = np.zeros(eimg.edges.shape, np.uint8)
+            es = visible_edge_samples(model, T_cam_model, K, dist, eimg.width, eimg.height, max_buffer_px=1200)
+            step = max(1, int(np.ceil(len(es.uv_px) / 400000)))
+            for u, v in np.rint(es.uv_px[::step] * 4).astype(np.int64):
+                cv2.circle(one, (int(u), int(v)), int(round(width_px * 4)), 255, -1, shift=2)
+            eimg.cache[key] = (model, one)      # the model held: its id stays its own
+        np.maximum(mask, eimg.cache[key][1], out=mask)
     edges = np.where(mask > 0, 0, eimg.edges).astype(np.uint8)
     return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
                        eimg.noise_linear)

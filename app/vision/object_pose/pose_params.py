@@ -8,9 +8,21 @@ from scipy.spatial.transform import Rotation
 from app.geometry.transforms import make_pose
 
 
+try:            # SciPy's compiled rotations (>= 1.17) without the Rotation object's per-call overhead:
+    from scipy.spatial.transform import _rotation_cy     # the fits call this ~10^4 times per image
+
+    def rotvec_matrix(rotvec: np.ndarray) -> np.ndarray:
+        """``Rotation.from_rotvec(rotvec).as_matrix()``, the same numbers, (3,) -> (3, 3)."""
+        return _rotation_cy.as_matrix(_rotation_cy.from_rotvec(np.asarray(rotvec, float).reshape(1, 3)))[0]
+except (ImportError, AttributeError):     # another SciPy: the public way
+    def rotvec_matrix(rotvec: np.ndarray) -> np.ndarray:
+        """``Rotation.from_rotvec(rotvec).as_matrix()``, (3,) -> (3, 3)."""
+        return Rotation.from_rotvec(rotvec).as_matrix()
+
+
 def perturb(T_table_obj: np.ndarray, c_table: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``T_table_obj`` moved by p = (dx, dy, dz mm, rotation vector rad) about the point c_table."""
-    R = Rotation.from_rotvec(p[3:6]).as_matrix()
+    R = rotvec_matrix(p[3:6])
     T = make_pose(R, c_table + p[:3] - R @ c_table)
     return T @ T_table_obj
 

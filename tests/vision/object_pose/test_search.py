@@ -68,3 +68,114 @@ def test_a_bores_facets_count_only_where_they_are_its_silhouette():
     now = float(scorer(x, y, th, P[sel], D[sel], np.ones(len(sel)), normals=(N0, N1, sm))[0])
     old = float(scorer(x, y, th, P[sel], D[sel], np.ones(len(sel)), normals=(N0, N1, np.zeros_like(sm)))[0])
     assert now > 0.4 and now > 3 * old, (now, old)     # measured: 0.47 and 0.07
+
+
+def _pose_by_pose_score(eimg, T_cam_table, x, y, th, P, D, w, normals, tau_px=2.0, max_angle_deg=20.0):
+    """The image scorer's rule written out for one pose: the reference the batched scorer must match."""
+    from app.geometry.model_edges import project_points_px
+
+    R, t = T_cam_table[:3, :3], T_cam_table[:3, 3]
+    Rz = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
+    X = P @ Rz.T + np.array([x, y, 0.0])
+    cam = -R.T @ t
+    N0, N1, smooth = normals
+    f0, f1 = (np.einsum("ij,ij->i", N @ Rz.T, cam - X) > 0 for N in (N0, N1))     # faces towards the camera
+    vis = np.where(smooth, f0 ^ f1, f0 | f1)
+    uv = project_points_px(X @ R.T + t, K, DIST)
+    tv = project_points_px((X + 0.5 * (D @ Rz.T)) @ R.T + t, K, DIST) - uv
+    val = np.zeros(len(P))
+    for i, ((u, v), (tu, tw)) in enumerate(zip(uv, tv)):
+        if not (np.isfinite(u) and np.isfinite(v) and 0 <= u <= eimg.width - 1 and 0 <= v <= eimg.height - 1):
+            continue
+        iu, iv = int(u), int(v)
+        a = eimg.edge_angle[eimg.nearest[iv, iu]]
+        if abs(np.cos(a) * tw - np.sin(a) * tu) / (np.hypot(tu, tw) + 1e-12) >= np.cos(np.radians(max_angle_deg)):
+            val[i] = np.clip(1.0 - eimg.dist_px[iv, iu] / tau_px, 0.0, 1.0)
+    w_floor = 0.5 * float(w[~smooth].sum()) if (~smooth).any() else 0.5 * float(w.sum())
+    return float((val * vis) @ w / max(float(vis @ w), w_floor + 1e-9))
+
+
+def _bracket_scene():
+    model = prepare_model(parts.bracket_140(), "bracket_140")
+    T_true = place_on_table(model.mesh, 400.0, 200.0, 25.0)
+    scene, r = _render([SceneObject("bracket_140", model.mesh, T_true, albedo=0.65)],
+                       [150.0, -250.0, 600.0], [400.0, 200.0, 0.0])
+    return model, T_true, scene, prepare_image(r.image, gamma=scene.gamma)
+
+
+def test_the_batched_image_scorer_gives_each_pose_its_own_score():
+    """Many poses scored at once (the per-image edge maps, contiguous arrays) against the rule
+    written out pose by pose: the same numbers."""
+    from app.vision.object_pose.search import _image_scorer, edge_faces_of
+
+    model, T_true, scene, eimg = _bracket_scene()
+    state = _state_of(model, T_true)
+    T_rest = model.resting_states[state].T_rest_obj
+    M = T_true @ np.linalg.inv(T_rest)
+    P = (model.samples_obj @ T_rest[:3, :3].T + T_rest[:3, 3]) + np.array([0.0, 0.0, M[2, 3]])
+    D = model.sample_dir_obj @ T_rest[:3, :3].T
+    sel = np.nonzero(np.abs(D[:, 2]) < 0.3)[0][::7]
+    normals = edge_faces_of(model, T_rest, sel)
+    w = np.where(np.arange(len(sel)) % 3 == 0, 1.0, 0.5)
+    rng = np.random.default_rng(3)
+    x = M[0, 3] + rng.uniform(-20, 20, 40)
+    y = M[1, 3] + rng.uniform(-20, 20, 40)
+    th = np.arctan2(M[1, 0], M[0, 0]) + rng.uniform(-0.3, 0.3, 40)
+    x[0], y[0], th[0] = M[0, 3], M[1, 3], np.arctan2(M[1, 0], M[0, 0])
+    got = _image_scorer(eimg, K, DIST, scene.T_cam_table)(x, y, th, P[sel], D[sel], w, normals=normals)
+    ref = [_pose_by_pose_score(eimg, scene.T_cam_table, *q, P[sel], D[sel], w, normals) for q in zip(x, y, th)]
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9)
+    assert got[0] > 0.3 and got[0] >= np.max(got) - 1e-9       # the true pose scores best (measured 0.49)
+
+
+def test_planes_on_one_grid_reuse_the_template_spectra_and_find_the_same_starts(monkeypatch):
+    """The coarse search's rotated-template spectra kept from one plane for the next on the same
+    grid (the risers): the starts are those of a search that made its own."""
+    from app.geometry.transforms import inv
+    from app.vision.object_pose.search import _edge_rays_table, _image_scorer, _plane_search
+
+    model, T_true, scene, eimg = _bracket_scene()
+    T_table_cam = inv(scene.T_cam_table)
+    rays = _edge_rays_table(eimg, K, DIST, T_table_cam, 60000, np.random.default_rng(0))
+    C = T_table_cam[:3, 3]
+    ext = (200.0, 600.0, 50.0, 350.0)
+    scorer = _image_scorer(eimg, K, DIST, scene.T_cam_table)
+    state = _state_of(model, T_true)
+
+    def search(h, cache):
+        return _plane_search(model, state, h, rays, C, ext, 6, px_mm=0.7, image_score=scorer, cache=cache)
+
+    alone = search(7.5, {})
+    cache: dict = {}
+    search(0.0, cache)
+    spectra = cache["coarse_kernels"][1]
+    assert len(spectra) > 1
+    shared = search(7.5, cache)
+    assert cache["coarse_kernels"][1] is spectra                     # reused, not made again
+    assert len(shared) == len(alone) > 0
+    for a, b in zip(alone, shared):
+        assert np.array_equal(a.T_table_obj, b.T_table_obj) and a.votes == b.votes
+    # with room for the first turn's spectra only, the others are made per plane: the same starts
+    monkeypatch.setattr("app.vision.object_pose.search.KERNEL_CACHE_BYTES", 1)
+    cache = {}
+    search(0.0, cache)
+    assert len(cache["coarse_kernels"][1]) == 1
+    capped = search(7.5, cache)
+    for a, b in zip(alone, capped):
+        assert np.array_equal(a.T_table_obj, b.T_table_obj) and a.votes == b.votes
+
+
+def test_padded_template_spectra_are_rfft2s():
+    """The coarse template's spectrum from its non-zero rows (:func:`_padded_rfft2`) is rfft2's."""
+    from scipy import fft as sfft
+
+    from app.vision.object_pose.search import _padded_rfft2
+
+    rng = np.random.default_rng(0)
+    for n, k, Py, Px in ((8, 23, 270, 180), (3, 9, 64, 50), (5, 23, 257, 199), (2, 31, 20, 40)):   # the last crops
+        ker = np.zeros((n, k, k), np.float32)
+        np.add.at(ker, (rng.integers(0, n, 300), rng.integers(0, k, 300), rng.integers(0, k, 300)),
+                  rng.choice([0.5, 1.0], 300).astype(np.float32))
+        want = sfft.rfft2(ker, s=(Py, Px))
+        got = _padded_rfft2(ker, Py, Px)
+        assert got.dtype == want.dtype and np.array_equal(got, want)

@@ -1,0 +1,45 @@
+"""The image side prepared once (app.vision.object_pose.edge_image): the per-image caches give the
+numbers the uncached path gives."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from app.geometry import parts
+from app.geometry.model_edges import prepare_model
+from app.geometry.transforms import make_pose
+from app.vision.object_pose.edge_image import mask_known_edges, nearest_edge_maps, prepare_image
+from tests.vision.object_pose.test_locate import DIST, K
+
+
+def _picture() -> np.ndarray:
+    img = np.full((240, 320), 60, np.uint8)
+    cv2.rectangle(img, (40, 50), (150, 170), 200, -1)
+    cv2.circle(img, (230, 120), 45, 140, -1)
+    cv2.line(img, (10, 220), (310, 190), 230, 3)
+    return img
+
+
+def test_nearest_edge_maps_are_the_lookups_they_replace():
+    eimg = prepare_image(_picture())
+    d, cos_a, sin_a = nearest_edge_maps(eimg)
+    a = eimg.edge_angle[eimg.nearest]                   # (H, W): direction of the nearest edge pixel
+    assert np.array_equal(d, eimg.dist_px.ravel())
+    assert np.array_equal(cos_a, np.cos(a).ravel()) and np.array_equal(sin_a, np.sin(a).ravel())
+    assert nearest_edge_maps(eimg)[1] is cos_a         # made once per image
+
+
+def test_known_edges_masked_with_the_cached_mask_as_without():
+    model = prepare_model(parts.parallel(150.0, 25.0, 8.0), "parallel")
+    img = np.full((604, 956), 70, np.uint8)
+    cv2.rectangle(img, (300, 250), (700, 330), 190, -1)
+    T_a = make_pose(np.diag([1.0, -1.0, -1.0]), [-40.0, -10.0, 420.0])
+    T_b = make_pose(np.diag([1.0, -1.0, -1.0]), [10.0, 15.0, 400.0])
+    shared = prepare_image(img)
+    for known in ([(model, T_a)], [(model, T_b)], [(model, T_a), (model, T_b)]):
+        cached = mask_known_edges(shared, known, K, DIST)     # later calls reuse the masks made before
+        fresh = mask_known_edges(prepare_image(img), known, K, DIST)
+        assert np.array_equal(cached.edges, fresh.edges)
+        assert np.array_equal(cached.dist_px, fresh.dist_px)
+    assert (fresh.edges > 0).sum() < (shared.edges > 0).sum()   # the poses do mask edges
