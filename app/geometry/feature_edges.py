@@ -36,7 +36,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["FeatureEdges", "feature_edges", "normal_noise_deg"]
+__all__ = ["FeatureEdges", "boundary_edges", "feature_edges", "normal_noise_deg"]
 
 #: median angle (deg) between a face and its most nearly coplanar neighbour above which a mesh is
 #: treated as noisy (CAD meshes: 0; a 0.05 mm noise on 1 mm triangles: about 3 deg)
@@ -91,7 +91,7 @@ def normal_noise_deg(mesh: trimesh.Trimesh) -> float:
     return float(np.median(best[ok])) if np.any(ok) else 0.0
 
 
-def _boundary_edges(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+def boundary_edges(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
     """Edges used by one face only (open meshes): (B, 2) vertices and (B, 2) faces (second -1)."""
     es = mesh.edges_sorted
     grp = trimesh.grouping.group_rows(es, require_count=1)
@@ -456,7 +456,7 @@ def feature_edges(mesh: trimesh.Trimesh, *, smooth_angle_deg: float = 2.0, featu
     """
     noise = normal_noise_deg(mesh)
     is_noisy = noise > NOISY_MESH_DEG if noisy is None else bool(noisy)
-    bv, bf = _boundary_edges(mesh)
+    bv, bf = boundary_edges(mesh)
     V = mesh.vertices
     if is_noisy:
         ev, ef, feat, ends, dirs, fitted, Nf, info = _noisy_feature_edges(

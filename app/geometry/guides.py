@@ -51,6 +51,13 @@ OFF_GUIDE_DEG = 2.0
 Coord = Annotated[float, Field(strict=False, allow_inf_nan=False, ge=-MAX_COORD_MM, le=MAX_COORD_MM)]
 
 
+def _numbers(v: Any, n: int, form: str) -> Any:
+    """``v`` as a list when it is a list or tuple of ``n`` items, else the error ``form, got v``."""
+    if not isinstance(v, (list, tuple)) or len(v) != n:
+        raise ValueError(f"{form}, got {v!r}")
+    return list(v)
+
+
 class GuideSpec(BaseModel):
     """The guide of a fixture on its carrier (carrier frame, mm)."""
 
@@ -81,9 +88,7 @@ class GuideSpec(BaseModel):
     @field_validator("axis", mode="before")
     @classmethod
     def _axis_shape(cls, v: Any) -> Any:
-        if not isinstance(v, (list, tuple)) or len(v) != 3:
-            raise ValueError(f"axis must be [x, y, z] (three numbers), got {v!r}")
-        return list(v)
+        return _numbers(v, 3, "axis must be [x, y, z] (three numbers)")
 
     @field_validator("axis")
     @classmethod
@@ -96,9 +101,7 @@ class GuideSpec(BaseModel):
     @field_validator("travel_mm", mode="before")
     @classmethod
     def _travel_shape(cls, v: Any) -> Any:
-        if not isinstance(v, (list, tuple)) or len(v) != 2:
-            raise ValueError(f"travel_mm must be [lo, hi] (two numbers, mm), got {v!r}")
-        return list(v)
+        return _numbers(v, 2, "travel_mm must be [lo, hi] (two numbers, mm)")
 
     @field_validator("travel_mm")
     @classmethod

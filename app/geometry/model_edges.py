@@ -22,7 +22,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from app.geometry.feature_edges import feature_edges
+from app.geometry.feature_edges import boundary_edges, feature_edges
 from app.geometry.mesh import resting_poses
 from app.geometry.transforms import inv, make_pose, transform_points
 
@@ -327,25 +327,6 @@ def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
 # --------------------------------------------------------------------------------------------------
 
 
-def _edge_table(mesh: trimesh.Trimesh, smooth_angle_deg: float, feature_angle_deg: float):
-    adj_edges = mesh.face_adjacency_edges                     # (A, 2)
-    adj_faces = mesh.face_adjacency                           # (A, 2)
-    ang = np.degrees(mesh.face_adjacency_angles)
-    keep = ang > smooth_angle_deg
-    ev = [adj_edges[keep]]
-    ef = [adj_faces[keep]]
-    feat = [ang[keep] > feature_angle_deg]
-    # boundary edges (open meshes): edges used by a single face
-    edges_sorted = mesh.edges_sorted
-    grp = trimesh.grouping.group_rows(edges_sorted, require_count=1)
-    if len(grp):
-        ev.append(edges_sorted[grp])
-        ef.append(np.stack([mesh.edges_face[grp], -np.ones(len(grp), dtype=np.int64)], axis=1))
-        feat.append(np.ones(len(grp), dtype=bool))
-    return (np.concatenate(ev).astype(np.int64), np.concatenate(ef).astype(np.int64),
-            np.concatenate(feat))
-
-
 def _sample_edges(vertices: np.ndarray, edge_vertices: np.ndarray, step_mm: float):
     return _sample_segments(vertices[edge_vertices[:, 0]], vertices[edge_vertices[:, 1]], step_mm)
 
@@ -488,9 +469,9 @@ def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = 
     # the sharp edges separately: small features (holes, chamfers) are mostly edges, a small share of
     # the surface but what an image shows; an exact symmetry must map the edges too
     # (``crease_ends`` (C, 2, 3): the creases as prepare_model found them, a scan's without its noise)
-    if crease_ends is None:
-        ev, _, feat = _edge_table(mesh, 1.0, 30.0)
-        crease_ends = mesh.vertices[ev[feat]]
+    if crease_ends is None:       # the mesh's own: face adjacencies above 30 deg, and open boundaries
+        crease = mesh.face_adjacency_edges[np.degrees(mesh.face_adjacency_angles) > 30.0].astype(np.int64)
+        crease_ends = mesh.vertices[np.concatenate([crease, boundary_edges(mesh)[0]])]
     ep, _, _ = _sample_segments(crease_ends[:, 0], crease_ends[:, 1], min(diag / 600.0, tol / 2))
     tree_e = cKDTree(ep) if len(ep) else None
     query_e = ep[rng.choice(len(ep), size=min(3 * n_points, len(ep)), replace=False)] if len(ep) else ep

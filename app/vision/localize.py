@@ -202,6 +202,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                f"table located from markers {', '.join(map(str, table.ids_used))}; RMS {table.rms_px:.2f} px",
                tdict, table_pic))
     T_cam_table = table.T_cam_table
+    table_cov = (table.covariance, table.centroid_table_mm)     # its error enters every object's sigma
 
     known = ((table_model.prepare(), np.eye(4)),) if table_model is not None else ()
     labels = marker_labels_table(table_layout)
@@ -226,7 +227,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                         min_score=max(min_score, 0.6), min_margin=min_margin,
                                         height_offsets_mm=height_offsets_mm, known_models=known,
                                         free_height=free_height, known_regions=labels,
-                                        table_covariance=(table.covariance, table.centroid_table_mm))
+                                        table_covariance=table_cov)
             accepted += list(rec.accepted)
             ranked += list(rec.ranked)
             if not rec:
@@ -251,7 +252,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     elif chain:
         located, not_found = _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done,
                                            min_score=min_score, min_margin=min_margin, photo_view=photo_view,
-                                           photo_xy=table_xy, edges=edges)
+                                           photo_xy=table_xy, edges=edges, table_cov=table_cov)
     else:
         for cand in ordered:
             t = time.perf_counter()
@@ -262,7 +263,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                 occluders = [(c.prepare(), p.T_table_obj) for c, p in located
                              if isinstance(p, object_pose.ObjectPose)]
                 pose = object_pose.locate_object(image, K, dist, T_cam_table, cand.prepare(), edge_image=edges(),
-                                                 table_covariance=(table.covariance, table.centroid_table_mm),
+                                                 table_covariance=table_cov,
                                                  occluder_models=occluders, min_score=min_score,
                                                  min_margin=min_margin, height_offsets_mm=height_offsets_mm,
                                                  known_models=known, free_height=free_height, known_regions=labels)
@@ -381,7 +382,7 @@ def _edges_once(image: np.ndarray) -> Callable[[], object_pose.EdgeImage]:
 
 
 def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done, *, min_score, min_margin,
-                  photo_view: View | None = None, photo_xy=None, edges: Callable | None = None):
+                  photo_view: View | None = None, photo_xy=None, edges: Callable | None = None, table_cov=None):
     """The support chain: fixtures first (biggest first, each on the surfaces found so far, standing
     as modelled; a guided one after its carrier and only along its guide there), then every workpiece
     on all support surfaces and over risers of unknown height, with the located fixtures' edges
@@ -443,7 +444,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
         else:
             pose = object_pose.locate_object(
                 image, K, dist, T_cam_table, model, occluder_models=occ, table_extent_xy=table_xy,
-                table_covariance=(table.covariance, table.centroid_table_mm),
+                table_covariance=table_cov,
                 edge_image=None if edges is None else edges(),
                 min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin,
                 height_offsets_mm=tuple(planes), free_height=not fixture, known_models=kn, known_regions=labels,

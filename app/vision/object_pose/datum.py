@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.geometry.model_edges import PreparedModel
+from app.vision.object_pose.verify import pose_distance
 
 
 @dataclass(frozen=True)
@@ -95,5 +96,5 @@ def _distinct_poses(poses: tuple, T_first: np.ndarray, tol_mm: float = 0.5, tol_
 
 
 def _same_pose(T1: np.ndarray, T2: np.ndarray, tol_mm: float, tol_deg: float) -> bool:
-    c = np.clip((np.trace(T1[:3, :3].T @ T2[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-    return bool(np.linalg.norm(T1[:3, 3] - T2[:3, 3]) < tol_mm and np.degrees(np.arccos(c)) < tol_deg)
+    d_mm, a_deg = pose_distance(T1, T2, np.zeros(3))          # the obj origins, and the turn between
+    return d_mm < tol_mm and a_deg < tol_deg

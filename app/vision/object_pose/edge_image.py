@@ -94,8 +94,8 @@ def nearest_edge_maps(eimg: EdgeImage) -> tuple[np.ndarray, np.ndarray, np.ndarr
             near = eimg.nearest.ravel()
             cos_a, sin_a = np.cos(eimg.edge_angle)[near], np.sin(eimg.edge_angle)[near]
         else:                           # no edges: direction 0, as the scorers took it
-            zero = np.zeros(eimg.width * eimg.height, np.float32)
-            cos_a, sin_a = np.cos(zero), np.sin(zero)
+            cos_a = np.ones(eimg.width * eimg.height, np.float32)
+            sin_a = np.zeros(eimg.width * eimg.height, np.float32)
         eimg.cache["nearest_edge_maps"] = (eimg.dist_px.ravel(), cos_a, sin_a)
     return eimg.cache["nearest_edge_maps"]
 

@@ -401,15 +401,11 @@ def _choose(ctx: LocateContext, fits: list[Fit]) -> tuple[Fit, list[Fit], list]:
         # image edges inside its outline unexplained is the reading (the block right side up: its
         # pocket's edges are its own; upside down it is a plain outline that supports a share as high;
         # within half the margin: devset setup_000, 0.88 against 0.90, not setup_001's 0.61 against 0.69)
-        c_best = transform_points(best.T, model.center_obj[None])[0]
-        close = [r for r in fits if r is not best and r.converged and r.score >= best.score - 0.5 * ctx.opts.min_margin
-                 and r.support_px >= 0.8 * best.support_px and np.linalg.norm(
-                     transform_points(r.T, model.center_obj[None])[0] - c_best) < 0.25 * model.diameter_mm]
-        if close:
-            u_best, clearer = ctx.unexplained(best.T), min(((ctx.unexplained(r.T), r) for r in close), key=lambda t: t[0])
-            if clearer[0] < u_best - CLEARER_BY:
-                best = clearer[1]
-                fits.sort(key=lambda r: (r is not best, -r.key))
+        clearer = _clearer(ctx, best, fits, lambda r: r.score >= best.score - 0.5 * ctx.opts.min_margin
+                           and r.support_px >= 0.8 * best.support_px)
+        if clearer is not best:
+            best = clearer
+            fits.sort(key=lambda r: (r is not best, -r.key))
     if best.converged:          # polish the chosen pose with a narrow search
         pol = ctx.refine_rest(best.T, best.state, radii=(2.0, 1.5, 1.5), hyp=best.hyp)
         if pol.converged and pol.key >= best.key * 0.98:
@@ -431,15 +427,23 @@ def _clearer_reading(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Fit:
     plain square with four holes and supports 92 % of its edges, right side up its pocket's walls
     are half hidden and it supports 80 %; but right side up it explains 21 % more edge length and
     leaves 9 % of the edges inside its outline unexplained, against 33 % (generator synth_016)."""
-    c_best = transform_points(best.T, ctx.model.center_obj[None])[0]
-    better = [r for r in fits if r is not best and r.converged and r.score >= ctx.opts.min_score
-              and r.support_px >= best.support_px and np.linalg.norm(
-                  transform_points(r.T, ctx.model.center_obj[None])[0] - c_best) < 0.25 * ctx.model.diameter_mm]
-    if not better:
+    return _clearer(ctx, best, fits, lambda r: r.score >= ctx.opts.min_score and r.support_px >= best.support_px)
+
+
+def _clearer(ctx: LocateContext, best: Fit, fits: list[Fit], admit) -> Fit:
+    """Of the converged fits at ``best``'s place (centres within a quarter of the part's size) that
+    ``admit``, the one that leaves the fewest image edges inside its outline unexplained, if that is
+    clearly fewer (:data:`CLEARER_BY`) than ``best`` leaves; else ``best``. ``fits`` best first by
+    key: the first of equals is taken."""
+    model = ctx.model
+    c_best = transform_points(best.T, model.center_obj[None])[0]
+    cands = [r for r in fits if r is not best and r.converged and admit(r) and np.linalg.norm(
+        transform_points(r.T, model.center_obj[None])[0] - c_best) < 0.25 * model.diameter_mm]
+    if not cands:
         return best
     u_best = ctx.unexplained(best.T)
-    clearer = [r for r in better if ctx.unexplained(r.T) < u_best - CLEARER_BY]
-    return min(clearer, key=lambda r: (ctx.unexplained(r.T), -r.key)) if clearer else best
+    u, clearer = min(((ctx.unexplained(r.T), r) for r in cands), key=lambda t: t[0])
+    return clearer if u < u_best - CLEARER_BY else best
 
 
 @dataclass

@@ -116,8 +116,10 @@ def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, ce
     devset setup_014's part 0.39 mm off in x. Zero where the fit has no solution or no table
     covariance is known."""
     S = np.asarray(table_cov, float)
-    if "sol" not in info or S.shape != (6, 6) or not np.all(np.isfinite(S)):
-        return np.zeros((6, 6)) if "sol" not in info or S.shape != (6, 6) else np.full((6, 6), np.inf)
+    if "sol" not in info or S.shape != (6, 6):
+        return np.zeros((6, 6))
+    if not np.all(np.isfinite(S)):          # the table's pose is not known to any sigma
+        return np.full((6, 6), np.inf)
     free = info["free"]
     p, r, inl, J = _linearised(info, K, dist, T_cam_table)
     Ji, ri = J[inl][:, free], r[inl]
