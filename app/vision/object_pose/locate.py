@@ -571,7 +571,8 @@ def _contact_fit(ctx: LocateContext, best: Fit, fits: list[Fit]) -> ContactFit:
         held = side_contacts(ctx.clamp_faces, ctx.hull_obj, r.T, o.contact_sigma_mm) if sides else []
         if held:
             pr = pr + (tuple(held),)
-        T6, info6 = ctx.refine(r.T, FREE_6DOF, (2.0, 2.0), round_axis_table=ra, prior=pr)
+        T6, info6 = ctx.refine(r.T, FREE_6DOF, (2.0, 2.0), round_axis_table=ra, prior=pr,
+                               reweight=o.final_reweight)
         conflict = "sol" in info6 and np.max(np.abs(prior_offsets(T6, pr))) > MAX_PRIOR_SIGMAS
         if conflict and held:      # the image does not let it touch the face: judge it without
             return fit6(r, sides=False)

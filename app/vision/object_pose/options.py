@@ -41,6 +41,8 @@ class LocateOptions:
     contact_sigma_mm, contact_sigma_deg : how far a part on a known surface may sit above it or tilt
         (a chip, a burr, a strap pressing one side); ``riser_sigma_mm`` : the prior on the height
         above a riser of unknown height
+    final_reweight : Cauchy re-solves of the final 6-DoF fit per round (``refine_pose``'s
+        ``reweight``); 0 keeps its soft-L1 solve alone
     """
 
     gamma: float = 2.2
@@ -65,6 +67,7 @@ class LocateOptions:
     contact_sigma_mm: float = CONTACT_SIGMA_MM
     contact_sigma_deg: float = CONTACT_SIGMA_DEG
     riser_sigma_mm: float = RISER_SIGMA_MM
+    final_reweight: int = 3
 
     def with_(self, **changes) -> LocateOptions:
         """A copy with ``changes``; an unknown name is a ``TypeError`` that names the known ones."""

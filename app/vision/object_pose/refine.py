@@ -14,7 +14,7 @@ from app.geometry.model_edges import PreparedModel, project_points_px, visible_e
 from app.geometry.transforms import transform_points
 from app.vision.object_pose.edge_image import EdgeImage
 from app.vision.object_pose.pose_params import FREE_6DOF, perturb
-from app.vision.object_pose.uncertainty import PRIOR_PX, prior_offsets
+from app.vision.object_pose.uncertainty import PRIOR_PX, cauchy_weights, prior_offsets
 
 
 def edges_along_normals(lin: np.ndarray, uv: np.ndarray, normal: np.ndarray, search_px: float,
@@ -94,7 +94,7 @@ def _clear_of_other_edges(model: PreparedModel, es, radius_px: float, max_turn_d
 def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_cam_table, K, dist,
             occluders_cam, subset, *, free=FREE_6DOF, radii=(5.0, 3.0, 2.0, 2.0), min_contrast: float,
             round_axis_table: np.ndarray | None = None, f_scale_px: float = 0.5,
-            prior: tuple[np.ndarray, float, float, np.ndarray] | None = None):
+            prior: tuple[np.ndarray, float, float, np.ndarray] | None = None, reweight: int = 0):
     """Iterated least-squares fit of the free pose parameters to subpixel image edges.
 
     Parameters p = (dx, dy, dz mm, rotation vector rad) move the part about its centre of mass in
@@ -106,6 +106,14 @@ def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, 
     tilt are known beforehand to within the contact's sigmas (a chip under an edge, an unknown riser)
     about ``T_rest``: they enter as Gaussian prior residuals (in units of :data:`PRIOR_PX` pixels of
     edge noise) and as prior information in :func:`covariance` (a maximum a-posteriori fit).
+
+    ``reweight``: after each round's soft-L1 solve, that many re-solves with Cauchy weights on the
+    edge residuals (iteratively reweighted least squares, :func:`cauchy_weights`), the prior's
+    residuals unweighted. At the true pose the devset's edges sit within 0.06 px (median) of the
+    model's, while a few samples caught on a clamp's or a shadow's edge 1-2 px away still pull a
+    soft-L1 fit (0.5 px scale) by tenths of a millimetre along the line of sight; the Cauchy weight
+    at a scale from the residuals' own spread lets them go. The prior must not be robustified: it
+    would be discounted exactly where it matters.
     """
     W, H = eimg.width, eimg.height
     free = np.asarray(free, dtype=np.int64)
@@ -143,11 +151,13 @@ def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, 
             p[free] = q
             return p
 
-        def fun(q, X=X, n=n, target=target, T0=T0, c_table=c_table, pin=pin, w_prior=w_prior):
+        def fun(q, X=X, n=n, target=target, T0=T0, c_table=c_table, pin=pin, w_prior=w_prior, sw=None):
             p = full(q)
             T1 = perturb(T0, c_table, p)
             uv = project_points_px(transform_points(T_cam_table @ T1, X), K, dist)
             res = np.einsum("ij,ij->i", n, uv - target)
+            if sw is not None:
+                res = sw * res
             if pin is not None:   # round part: pin the unobservable spin
                 res = np.append(res, 1e4 * float(p[3:6] @ pin))
             if prior is not None:
@@ -157,10 +167,14 @@ def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, 
         xs = np.array([1.0, 1.0, 1.0, 1e-3, 1e-3, 1e-3])[free]
         sol = least_squares(fun, np.zeros(len(free)), loss="soft_l1", f_scale=f_scale_px, method="trf",
                             x_scale=xs, max_nfev=60)
+        w = None
+        for _ in range(reweight):
+            w = cauchy_weights(fun(sol.x)[:len(X)])
+            sol = least_squares(fun, sol.x, kwargs={"sw": np.sqrt(w)}, method="trf", x_scale=xs, max_nfev=60)
         T = perturb(T0, c_table, full(sol.x))
         info = {"sol": sol, "X": X, "n": n, "target": target, "T0": T0, "c_table": c_table,
                 "n_visible": len(es.index), "n_used": int(good.sum()), "free": free, "pin": pin, "prior": prior,
-                "edge": model.sample_edge[es.index[good]]}
+                "edge": model.sample_edge[es.index[good]], "weights": w}
     return T, info
 
 

@@ -42,6 +42,19 @@ MAX_PRIOR_SIGMAS = 4.0
 # weighs as much as one edge sample of that noise (the sigma calibration absorbs the rest).
 PRIOR_PX = 0.5
 
+# Cauchy weight's scale in robust sigmas of the edge residuals (95 % efficiency under Gaussian noise,
+# Holland & Welsch 1977), and its floor (px): below it the residuals are the model's own tessellation.
+CAUCHY_C = 2.385
+CAUCHY_MIN_PX = 0.1
+
+
+def cauchy_weights(res_px: np.ndarray) -> np.ndarray:
+    """IRLS weights ``1 / (1 + (r / c)^2)`` of edge residuals (px), ``c`` = :data:`CAUCHY_C` robust
+    sigmas (1.4826 x the median absolute residual), at least :data:`CAUCHY_MIN_PX`."""
+    r = np.asarray(res_px, float)
+    c = max(CAUCHY_C * 1.4826 * float(np.median(np.abs(r))) if len(r) else 0.0, CAUCHY_MIN_PX)
+    return 1.0 / (1.0 + (r / c) ** 2)
+
 
 def prior_offsets(T: np.ndarray, prior) -> np.ndarray:
     """(dz / sigma_z, tilt_x / sigma_t, tilt_y / sigma_t, then one gap / sigma per side contact) of
@@ -76,15 +89,16 @@ def covariance(info: dict, K, dist, T_cam_table, data_scale: float = 1.0) -> tup
     ``(J^T J)^-1 s^2`` plus the cluster-robust term for errors shared along each model edge."""
     free = info["free"]
     p, r, inl, J = _linearised(info, K, dist, T_cam_table)
-    Ji, ri = J[inl][:, free], r[inl]
-    m = len(ri)
-    s2 = float(ri @ ri) / max(m - len(free), 1)
+    use, sw = _used(info, r, inl)
+    Ji, ri = J[use][:, free] * sw[:, None], r[use] * sw
+    m = float(np.sum(sw ** 2))
+    s2 = float(ri @ ri) / max(m - len(free), 1.0)
     A = _information(info, Ji)
     Ainv = np.linalg.pinv(A)
     cov_iid = Ainv * s2
     # samples along one model edge share its errors (blur, shading, tessellation): cluster-robust
     # "sandwich" covariance with the edges as clusters (Liang & Zeger 1986, Biometrika 73(1), eq. 2.4)
-    edges = info["edge"][inl]
+    edges = info["edge"][use]
     G = np.zeros((len(free), len(free)))
     for e in np.unique(edges):
         g = Ji[edges == e].T @ ri[edges == e]
@@ -98,7 +112,7 @@ def covariance(info: dict, K, dist, T_cam_table, data_scale: float = 1.0) -> tup
         cov_f = np.linalg.pinv(np.linalg.pinv(cov_f) + P)
     cov = np.zeros((6, 6))
     cov[np.ix_(free, free)] = cov_f
-    return cov, inl, float(np.sqrt(np.mean(ri ** 2))) if m else float("nan")
+    return cov, inl, float(np.sqrt(np.mean(r[inl] ** 2))) if inl.any() else float("nan")
 
 
 def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, centroid_table_mm,
@@ -122,16 +136,17 @@ def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, ce
         return np.full((6, 6), np.inf)
     free = info["free"]
     p, r, inl, J = _linearised(info, K, dist, T_cam_table)
-    Ji, ri = J[inl][:, free], r[inl]
-    s2 = max(float(ri @ ri) / max(len(ri) - len(free), 1), 1e-12) * data_scale ** 2
+    use, sw = _used(info, r, inl)
+    Ji, ri = J[use][:, free] * sw[:, None], r[use] * sw
+    s2 = max(float(ri @ ri) / max(float(np.sum(sw ** 2)) - len(free), 1.0), 1e-12) * data_scale ** 2
     c = np.asarray(centroid_table_mm, float)
-    M = np.zeros((int(inl.sum()), 6))
+    M = np.zeros((int(use.sum()), 6))
     for k in range(6):
         h = 1e-6 if k < 3 else 1e-3
         e = np.zeros(6)
         e[k] = h
-        M[:, k] = (_raw(info, p, K, dist, T_cam_table @ _table_error(e, c))[inl]
-                   - _raw(info, p, K, dist, T_cam_table @ _table_error(-e, c))[inl]) / (2 * h)
+        M[:, k] = (_raw(info, p, K, dist, T_cam_table @ _table_error(e, c))[use]
+                   - _raw(info, p, K, dist, T_cam_table @ _table_error(-e, c))[use]) / (2 * h) * sw
     H = _information(info, Ji) / s2
     P = _prior_information(info, p)
     if P is not None:
@@ -174,6 +189,16 @@ def _linearised(info: dict, K, dist, T_cam_table):
         dp[k] = h
         J[:, k] = (_raw(info, p + dp, K, dist, T_cam_table) - _raw(info, p - dp, K, dist, T_cam_table)) / (2 * h)
     return p, r, inl, J
+
+
+def _used(info: dict, r: np.ndarray, inl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples the covariance is taken over and the square roots of their weights: the robust
+    inliers with weight 1 after a soft-L1 fit; after a Cauchy-reweighted one (``info["weights"]``)
+    every sample with its Cauchy weight at the solution, as the fit weighed it (the weighted
+    least-squares sandwich)."""
+    if info.get("weights") is None:
+        return inl, np.ones(int(inl.sum()))
+    return np.ones(len(r), bool), np.sqrt(cauchy_weights(r))
 
 
 def _information(info: dict, Ji: np.ndarray) -> np.ndarray:
