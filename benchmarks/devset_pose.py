@@ -31,6 +31,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,20 @@ sys.path.insert(0, os.environ.get("SETUPCAM_CODE", str(Path(__file__).resolve().
 
 DEVSET = Path(os.environ.get("SETUPCAM_DEVSET", Path(__file__).resolve().parents[2] / "shared" / "data" / "devset"))
 WRONG_MM, WRONG_DEG = 1.0, 0.5
+
+
+# the devset shop's parallels (every parallel_*.stl of its meshes, their heights) are declared as its
+# risers; --no-risers leaves every riser of unknown height
+RISERS = os.environ.get("SETUPCAM_RISERS", "1") != "0"
+
+
+@lru_cache(maxsize=4)
+def shop_riser_heights(root: Path) -> tuple[float, ...]:
+    """Heights (mm) of the devset's parallels: each mesh stands on z = 0, its top at its z extent."""
+    import trimesh
+
+    return tuple(sorted({round(float(trimesh.load(f, force="mesh").bounds[1, 2]), 3)
+                         for f in (Path(root) / "meshes").glob("parallel_*.stl")}))
 
 
 def scenes(family: str = "setup") -> list[dict]:
@@ -68,6 +83,8 @@ def run_scene(entry: dict, method: str) -> dict:
     if method == "engine":
         cands += sc.fixture_candidates
     kw = {"height_offsets_mm": (0.0,)} if method == "baseline" else {"chain": True}
+    if method == "engine" and entry.get("source") != "synth" and RISERS:
+        kw["riser_heights_mm"] = shop_riser_heights(DEVSET)
     # the service prepares a model once per revision and keeps it (services/setups.py): the time per
     # image is taken with the models prepared, their preparation reported apart
     t = time.perf_counter()
@@ -246,6 +263,8 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="var/devset")
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--no-risers", action="store_true",
+                    help="declare no risers: every parallel under a part is of unknown height")
     ap.add_argument("--family", default="setup", choices=("setup", "moved", "synth"),
                     help="moved: the devset's two-view pairs (reports their agreement); synth: our own "
                          "generator's table / vise / parallels scenes (app.synth.fixtures)")

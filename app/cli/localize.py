@@ -20,11 +20,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--clamp", action="append", default=[], help="a clamp/vise to locate (mesh file, mm); repeatable")
     p.add_argument("--support", action="append", default=[],
                    help="a support (parallel, fixture plate; mesh file, mm, standing as modelled); repeatable")
+    p.add_argument("--riser", action="append", default=[], type=_height_mm, metavar="MM",
+                   help="height of a parallel or riser the shop uses, without a model (mm); repeatable: a part "
+                        "over a riser of unknown height is tested against these and the --support heights")
     p.add_argument("--library", help="a models_library folder: recognise its workpieces, clamps and supports")
     p.add_argument("--units", default="mm", choices=["mm", "inch"], help="units of --model/--clamp/--support files")
     p.add_argument("--overlay", help="write the overlay picture to this PNG")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=run)
+
+
+def _height_mm(text: str) -> float:
+    """A riser height from the command line: a positive number of mm, else a clear usage error."""
+    try:
+        h = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 < h < 1e4:
+        raise argparse.ArgumentTypeError(f"a riser is a positive height in mm, not {text}")
+    return h
 
 
 def _load_candidates(args) -> tuple[list, bool]:
@@ -81,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         # named models: the support chain (fixtures first, the part on their surfaces or over risers)
         result = localize(image, cam.K_array, cam.dist_array, layout, candidates, recognise=recognise,
-                          table_model=table, chain=not recognise)
+                          table_model=table, chain=not recognise, riser_heights_mm=tuple(args.riser))
     except Exception as exc:  # noqa: BLE001 - an engine bug must still end with a sentence, not a traceback
         print(f"setupcam localize: internal error in localisation ({exc.__class__.__name__}: {exc}); "
               "please report it with the image", file=sys.stderr)

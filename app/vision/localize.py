@@ -164,7 +164,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
              candidates: list[Candidate], *, recognise: bool = False,
              on_stage: Callable[[Stage], None] | None = None, min_score: float = 0.5,
              min_margin: float = 0.1, height_offsets_mm=(0.0,), table_model: Candidate | None = None,
-             chain: bool = False, free_height: bool = False) -> LocalizeResult:
+             chain: bool = False, free_height: bool = False,
+             riser_heights_mm: tuple | None = None) -> LocalizeResult:
     """Locate the table and the candidates in one image.
 
     Parameters
@@ -177,6 +178,10 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     on_stage : called with each finished :class:`Stage`
     table_model : the table's own model (its frame is the table frame): its border, slots and steps are
         removed from the image's edges before objects are searched (they are not the part)
+    chain : the support chain (fixtures first, parts on their surfaces or over risers)
+    riser_heights_mm : the shop's declared risers (its parallels' heights, mm), which a part over a
+        riser of unknown height is tested against (support chain only), besides the heights of the
+        candidates of kind ``support`` (:func:`riser_heights`), hidden under the part or not
     """
     K = np.asarray(K, float)
     dist = np.asarray(dist, float).ravel()
@@ -252,7 +257,9 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     elif chain:
         located, not_found = _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done,
                                            min_score=min_score, min_margin=min_margin, photo_view=photo_view,
-                                           photo_xy=table_xy, edges=edges, table_cov=table_cov)
+                                           photo_xy=table_xy, edges=edges, table_cov=table_cov,
+                                           risers=tuple(sorted(set(riser_heights(candidates)) | {
+                                               float(h) for h in (riser_heights_mm or ()) if 0 < float(h) < 1e4})))
     else:
         for cand in ordered:
             t = time.perf_counter()
@@ -382,7 +389,8 @@ def _edges_once(image: np.ndarray) -> Callable[[], object_pose.EdgeImage]:
 
 
 def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done, *, min_score, min_margin,
-                  photo_view: View | None = None, photo_xy=None, edges: Callable | None = None, table_cov=None):
+                  photo_view: View | None = None, photo_xy=None, edges: Callable | None = None, table_cov=None,
+                  risers: tuple = ()):
     """The support chain: fixtures first (biggest first, each on the surfaces found so far, standing
     as modelled; a guided one after its carrier and only along its guide there), then every workpiece
     on all support surfaces and over risers of unknown height, with the located fixtures' edges
@@ -450,6 +458,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
                 height_offsets_mm=tuple(planes), free_height=not fixture, known_models=kn, known_regions=labels,
                 known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
                 clamp_faces=() if fixture else tuple(jaw_faces),    # a fixture stands on its own
+                riser_heights_mm=() if fixture else risers,
                 **guided, **(FIXTURE_OPTIONS if fixture else {}))
             if pose and carrier_pose is not None:
                 pose = _kept_on_guide(cand, pose, guide, carrier_pose.T_table_obj)
@@ -484,6 +493,20 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
         _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table,
                 chain_text)
     return located, not_found
+
+
+def riser_heights(candidates: list[Candidate]) -> tuple[float, ...]:
+    """Heights (mm) of the supports among ``candidates`` (parallels, blocks) standing as modelled:
+    each declared support surface's height above the mesh's lowest point, else the mesh's height.
+    A part over a riser of unknown height is tested against them (``LocateOptions.riser_heights_mm``)."""
+    out: set[float] = set()
+    for c in candidates:
+        if c.kind != "support" or c.photo is not None:
+            continue
+        z0 = float(c.mesh.bounds[0, 2])
+        tops = [float(s["z_mm"]) for s in (c.support_surfaces or [])] or [float(c.mesh.bounds[1, 2])]
+        out.update(round(z - z0, 3) for z in tops if z - z0 > 0.5)
+    return tuple(sorted(out))
 
 
 def _carriers_first(fixtures: list[Candidate]) -> list[Candidate]:
@@ -535,7 +558,10 @@ def _carrier(surfaces, pose, cand) -> tuple[str, ...]:
     if s is None:
         return (f"an unknown support ({zmin:.1f} mm above the table)", "table")
     names = []
-    if zmin - s.height_mm > 1.0:
+    riser = getattr(pose, "riser_mm", None)
+    if riser is not None:
+        names.append(f"a declared riser {riser:g} mm high")
+    elif zmin - s.height_mm > 1.0:
         names.append(f"an unknown support {zmin - s.height_mm:.1f} mm high")
     names.append(s.carrier)
     if s.carrier != "table":

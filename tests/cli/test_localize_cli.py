@@ -58,3 +58,11 @@ def test_localize_cli_bad_input(tmp_path, capsys):
     rc = main(["localize", "--image", str(tmp_path / "missing.png"), "--intrinsics", str(tmp_path / "cam.json"),
                "--layout", str(tmp_path / "cam.json")])
     assert rc == 2 and "not a readable image" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value, why", [("-5", "a riser is a positive height in mm"), ("twenty", "not a number")])
+def test_localize_cli_refuses_a_riser_that_is_not_a_height(tmp_path, capsys, value, why):
+    with pytest.raises(SystemExit) as stop:
+        main(["localize", "--image", str(tmp_path / "img.png"), "--intrinsics", str(tmp_path / "cam.json"),
+              "--layout", str(tmp_path / "layout.json"), "--riser", value])
+    assert stop.value.code == 2 and why in capsys.readouterr().err

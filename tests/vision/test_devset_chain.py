@@ -33,10 +33,10 @@ def _scene(scene_id: str):
     return sc, image, Candidate(sc.workpiece["name"], trimesh.load(DEVSET / sc.workpiece["mesh"], force="mesh"))
 
 
-def _run(scene_id: str):
+def _run(scene_id: str, **kw):
     sc, image, wp = _scene(scene_id)
     res = localize(image, sc.K, sc.dist, sc.layout, [wp] + sc.fixture_candidates, table_model=sc.table_candidate,
-                   chain=True)
+                   chain=True, **kw)
     obj = next(o for o in res.objects if o["kind"] == "workpiece")
     # the operator picks among the poses the result lists as the same look (a plate turned over shows
     # the same outline: which face is up is a datum question, asked on the page)
@@ -70,6 +70,31 @@ def test_part_on_parallels_that_are_not_in_the_library():
     # the table pose's own error is part of the stated sigma (shared by every object in the picture)
     C, C_table = np.asarray(obj["cov6"]), np.asarray(obj["cov6_table"])
     assert np.all(np.diag(C_table)[:3] > 0) and np.all(np.diag(C_table) <= np.diag(C) + 1e-12)
+
+
+# the heights of the devset shop's parallels (its meshes' parallel_*.stl)
+SHOP_PARALLELS = (20.0, 25.0, 27.062, 30.0)
+
+
+def test_part_on_a_declared_parallel_stands_on_it():
+    """A part in the vise on 20 mm parallels hidden by it: its freely fitted height, 19.5 mm (0.56 mm
+    off along the line of sight), says clearly which of the shop's parallels it stands on; refitted
+    on it the part is where it is."""
+    res, obj, err = _run("setup_024", riser_heights_mm=SHOP_PARALLELS)
+    assert res.ok, res.reason
+    assert obj["chain"][:2] == ["a declared riser 20 mm high", "vise_body seat"], obj["chain"]
+    assert obj["riser_mm"] == 20.0
+    assert np.linalg.norm(err[:3]) < 0.15 and np.nanmax(np.abs(err[3:])) < 0.1, err
+    assert _within_3_sigma(obj, err), (err, obj["sigma"])
+
+
+def test_an_undeclared_parallel_is_not_taken_for_its_neighbour():
+    """The same part with only 25 and 30 mm parallels declared: its height stays the image's own,
+    over a support of unknown height, with the broad sigma that goes with it."""
+    res, obj, err = _run("setup_024", riser_heights_mm=(25.0, 30.0))
+    assert obj["riser_mm"] is None
+    assert obj["chain"][0].startswith("an unknown support"), obj["chain"]
+    assert _within_3_sigma(obj, err), (err, obj["sigma"])
 
 
 def test_part_held_between_the_located_jaws():

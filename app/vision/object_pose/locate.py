@@ -41,6 +41,9 @@ from app.vision.object_pose.search import (
 )
 from app.vision.object_pose.uncertainty import (
     MAX_PRIOR_SIGMAS,
+    RISER_APART_SIGMAS,
+    RISER_MATCH_SIGMAS,
+    RISER_MAX_SIGMA_MM,
     SNAP_MM,
     covariance,
     hull_points,
@@ -132,7 +135,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
     timings["verify"] = (time.perf_counter() - t) * 1e3
     if refusal is not None:
         return fail(*refusal, best.score, [{"T_table_obj": f.T.tolist(), "score": round(f.score, 4)} for f in fits])
-    contact = _contact_fit(ctx, best, fits)                                # 6 DoF with the contact prior
+    contact = _declared_riser(ctx, _contact_fit(ctx, best, fits))         # 6 DoF with the contact prior
     pose = _result(ctx, contact, rivals, sym_scores, distinct_drop)
     timings["verify"] = (time.perf_counter() - t) * 1e3
     timings["total"] = (time.perf_counter() - t_all) * 1e3
@@ -551,34 +554,41 @@ def _distinctiveness(ctx: LocateContext, best: Fit) -> tuple[float, str]:
 
 @dataclass
 class ContactFit:
-    """The chosen flat fit, its 6-DoF fit with the contact prior, and whether the two disagree."""
+    """The chosen flat fit, its 6-DoF fit with the contact prior, and whether the two disagree;
+    ``riser_mm``: the declared riser it was found standing on (None: a known surface, or a riser of
+    unknown height)."""
 
     best: Fit
     T6: np.ndarray
     info6: dict
     prior: tuple
     conflict: bool
+    riser_mm: float | None = None
+
+
+def _fit6(ctx: LocateContext, r: Fit, sides: bool = True, rest_z: float | None = None) -> ContactFit:
+    """The 6-DoF fit of flat fit ``r`` with its contact prior: on a known surface (or, given
+    ``rest_z``, with its lowest point on that height: a declared riser) within the contact's sigma,
+    else over a riser of unknown height; held by the jaw faces it touches unless ``sides`` is False."""
+    o, model = ctx.opts, ctx.model
+    ra = None if model.continuous_axis_obj is None else r.T[:3, :3] @ model.continuous_axis_obj
+    T_rest = r.T if rest_z is None else make_pose(None, [0.0, 0.0, rest_z - ctx.lowest_z(r.T)]) @ r.T
+    known = rest_z is not None or ctx.on_known_surface(r.T)
+    pr = (T_rest, o.contact_sigma_mm if known else o.riser_sigma_mm, np.radians(o.contact_sigma_deg), ctx.hull_obj)
+    held = side_contacts(ctx.clamp_faces, ctx.hull_obj, T_rest, o.contact_sigma_mm) if sides else []
+    if held:
+        pr = pr + (tuple(held),)
+    T6, info6 = ctx.refine(T_rest, FREE_6DOF, (2.0, 2.0), round_axis_table=ra, prior=pr, reweight=o.final_reweight)
+    conflict = "sol" in info6 and np.max(np.abs(prior_offsets(T6, pr))) > MAX_PRIOR_SIGMAS
+    if conflict and held:      # the image does not let it touch the face: judge it without
+        return _fit6(ctx, r, sides=False, rest_z=rest_z)
+    return ContactFit(best=r, T6=T6, info6=info6, prior=pr, conflict=bool(conflict), riser_mm=None)
 
 
 def _contact_fit(ctx: LocateContext, best: Fit, fits: list[Fit]) -> ContactFit:
     """Residual tilt and height: the free 6-DoF fit from the flat result with the contact prior."""
-    o, model = ctx.opts, ctx.model
-
-    def fit6(r: Fit, sides: bool = True) -> ContactFit:
-        ra = None if model.continuous_axis_obj is None else r.T[:3, :3] @ model.continuous_axis_obj
-        pr = (r.T, o.contact_sigma_mm if ctx.on_known_surface(r.T) else o.riser_sigma_mm,
-              np.radians(o.contact_sigma_deg), ctx.hull_obj)
-        held = side_contacts(ctx.clamp_faces, ctx.hull_obj, r.T, o.contact_sigma_mm) if sides else []
-        if held:
-            pr = pr + (tuple(held),)
-        T6, info6 = ctx.refine(r.T, FREE_6DOF, (2.0, 2.0), round_axis_table=ra, prior=pr,
-                               reweight=o.final_reweight)
-        conflict = "sol" in info6 and np.max(np.abs(prior_offsets(T6, pr))) > MAX_PRIOR_SIGMAS
-        if conflict and held:      # the image does not let it touch the face: judge it without
-            return fit6(r, sides=False)
-        return ContactFit(best=r, T6=T6, info6=info6, prior=pr, conflict=bool(conflict))
-
-    cf = fit6(best)
+    o = ctx.opts
+    cf = _fit6(ctx, best)
     if cf.conflict:
         # the best flat fit does not rest where it says (e.g. on a vise's seat where the part in fact
         # stands 20 mm higher on parallels and, seen from afar, looks nearly the same): a rival of
@@ -588,10 +598,48 @@ def _contact_fit(ctx: LocateContext, best: Fit, fits: list[Fit]) -> ContactFit:
         for r in sorted(fits, key=lambda r: -r.key):
             if r is best or not r.converged or r.score < best.score - o.min_margin or r.state != best.state:
                 continue
-            alt = fit6(r)
+            alt = _fit6(ctx, r)
             if "sol" in alt.info6 and not alt.conflict:
                 return alt
     return cf
+
+
+def _declared_riser(ctx: LocateContext, cf: ContactFit) -> ContactFit:
+    """A part over a riser of unknown height whose fitted height says clearly which of the shop's
+    declared risers (``riser_heights_mm``: its parallels) it stands on, refitted standing on it.
+
+    Tested, not snapped: the lowest point's fitted height must lie within
+    :data:`RISER_MATCH_SIGMAS` of its own sigma from one declared height above a known surface, every
+    other declared height at least :data:`RISER_APART_SIGMAS` away, that sigma at most
+    :data:`RISER_MAX_SIGMA_MM`, and the refit must not pull away from the riser (the contact
+    prior's own test). Else the height stays the image's, with its broad sigma: a parallel that is
+    not declared (27.06 mm among 20, 25 and 30) is not taken for its neighbour."""
+    o = ctx.opts
+    if (not o.riser_heights_mm or ctx.known_heights_mm is None or cf.conflict or "sol" not in cf.info6
+            or ctx.on_known_surface(cf.best.T)):
+        return cf
+    cov = covariance(cf.info6, ctx.K, ctx.dist, ctx.T_cam_table, data_scale=o.sigma_scale)[0]
+    P = transform_points(cf.T6, ctx.hull_obj)
+    low = P[int(np.argmin(P[:, 2]))]
+    d = low - cf.info6["c_table"]
+    g = np.array([0.0, 0.0, 1.0, d[1], -d[0], 0.0])       # d(lowest z) / d(t, rotation vector)
+    sz = float(np.sqrt(max(g @ cov @ g, 0.0)))
+    if not np.isfinite(sz) or sz > RISER_MAX_SIGMA_MM:
+        return cf
+    heights = {}
+    for h in ctx.known_heights_mm:
+        for r in o.riser_heights_mm:
+            if r > 0:
+                heights.setdefault(round(h + r, 2), r)
+    z = np.array(sorted(heights))
+    m = np.abs(z - low[2]) / max(sz, 1e-6)
+    order = np.argsort(m)
+    if m[order[0]] > RISER_MATCH_SIGMAS or (len(m) > 1 and m[order[1]] < RISER_APART_SIGMAS):
+        return cf
+    on = _fit6(ctx, cf.best, rest_z=float(z[order[0]]))
+    if "sol" not in on.info6 or on.conflict:
+        return cf
+    return replace(on, riser_mm=float(heights[float(z[order[0]])]))
 
 
 def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, distinct_drop: float) -> ObjectPose:
@@ -671,6 +719,7 @@ def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, di
         unexplained_fraction=ctx.unexplained(T_table_obj),
         supported_edge_px=best.support_px, uncertainty_ok=uncertainty_ok, height_offset_mm=height,
         held_by=tuple(c.name for c in cf.prior[4]) if len(cf.prior) > 4 and not cf.conflict else (),
+        riser_mm=cf.riser_mm,
         margin=float(rv.margin), runner_up_score=float(rv.runner),
         distinctiveness=distinct_drop, covariance=cov_o,
         table_covariance=origin_sigma(cov_table, T_table_obj, model)[0],

@@ -41,6 +41,8 @@ class LocateOptions:
     contact_sigma_mm, contact_sigma_deg : how far a part on a known surface may sit above it or tilt
         (a chip, a burr, a strap pressing one side); ``riser_sigma_mm`` : the prior on the height
         above a riser of unknown height
+    riser_heights_mm : heights of the shop's declared risers (its parallels' tops above their base, mm):
+        a part over a riser of unknown height is tested against them (``locate._declared_riser``)
     final_reweight : Cauchy re-solves of the final 6-DoF fit per round (``refine_pose``'s
         ``reweight``); 0 keeps its soft-L1 solve alone
     """
@@ -68,14 +70,16 @@ class LocateOptions:
     contact_sigma_deg: float = CONTACT_SIGMA_DEG
     riser_sigma_mm: float = RISER_SIGMA_MM
     final_reweight: int = 3
+    riser_heights_mm: tuple = ()
 
     def with_(self, **changes) -> LocateOptions:
         """A copy with ``changes``; an unknown name is a ``TypeError`` that names the known ones."""
         unknown = sorted(set(changes) - OPTION_NAMES)
         if unknown:
             raise TypeError(f"unknown locate option(s) {', '.join(unknown)}; known: {', '.join(sorted(OPTION_NAMES))}")
-        if "height_offsets_mm" in changes:
-            changes["height_offsets_mm"] = tuple(changes["height_offsets_mm"])
+        for key in ("height_offsets_mm", "riser_heights_mm"):
+            if key in changes:
+                changes[key] = tuple(changes[key])
         if changes.get("resting_states") is not None:
             changes["resting_states"] = tuple(changes["resting_states"])
         return replace(self, **changes)

@@ -63,6 +63,7 @@ class ObjectPose:
     chain: tuple = ()          # what it rests on, nearest first, down to the table (set by the caller)
     held_by: tuple = ()        # fixtures whose faces hold it in the final fit (vise jaws: .clamping)
     guided_by: str | None = None   # the fixture whose guide it was searched along (a vise's moving jaw)
+    riser_mm: float | None = None  # the declared riser it stands on (locate._declared_riser); None: none
     covariance: np.ndarray | None = None   # 6x6 of (origin x, y, z mm, rotation vector rad), table axes
     # the table pose's share of ``covariance`` (shared by every object in the picture: what one object
     # is known to relative to another, a part to its vise's jaw, leaves it out)
@@ -95,6 +96,7 @@ class ObjectPose:
             "chain": list(self.chain),
             "held_by": list(self.held_by),
             "guided_by": self.guided_by,
+            "riser_mm": self.riser_mm,
             "cov6": None if self.covariance is None else np.where(np.isfinite(self.covariance), self.covariance, 0.0).tolist(),
             "cov6_table": None if self.table_covariance is None else
             np.where(np.isfinite(self.table_covariance), self.table_covariance, 0.0).tolist(),

@@ -34,6 +34,14 @@ CONTACT_SIGMA_DEG = 0.3
 RISER_SIGMA_MM = 15.0
 # A freely fitted height within this of a known surface is taken as resting on it.
 SNAP_MM = 3.0
+# A part over a riser of unknown height stands on one of the shop's declared risers (its parallels,
+# ``LocateOptions.riser_heights_mm``) when its lowest point's fitted height is within
+# RISER_MATCH_SIGMAS of that riser's top, every other declared top is at least RISER_APART_SIGMAS
+# away, and that sigma is at most RISER_MAX_SIGMA_MM (an undeclared parallel 1 mm from a declared
+# one is then at least 1 sigma off, and two declared heights 4 mm apart can still be told apart).
+RISER_MATCH_SIGMAS = 2.0
+RISER_APART_SIGMAS = 4.0
+RISER_MAX_SIGMA_MM = 1.0
 # A 6-DoF fit further than this many prior sigmas from its resting contact is not believed.
 MAX_PRIOR_SIGMAS = 4.0
 
