@@ -270,6 +270,9 @@ def main(argv=None) -> int:
                          "generator's table / vise / parallels scenes (app.synth.fixtures)")
     ap.add_argument("--n-synth", type=int, default=24)
     a = ap.parse_args(argv)
+    if a.no_risers:
+        global RISERS
+        RISERS = False           # read by the workers, which fork after this
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     methods = a.methods.split(",")

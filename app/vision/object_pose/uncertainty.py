@@ -51,7 +51,8 @@ MAX_PRIOR_SIGMAS = 4.0
 PRIOR_PX = 0.5
 
 # Cauchy weight's scale in robust sigmas of the edge residuals (95 % efficiency under Gaussian noise,
-# Holland & Welsch 1977), and its floor (px): below it the residuals are the model's own tessellation.
+# Holland & Welsch 1977), and its floor (px): residuals that all sit at a few hundredths of a pixel
+# (a noiseless rendering) must not have their samples weighed by numerical noise.
 CAUCHY_C = 2.385
 CAUCHY_MIN_PX = 0.1
 
