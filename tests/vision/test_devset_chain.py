@@ -88,10 +88,12 @@ def test_part_on_a_declared_parallel_stands_on_it():
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
 
 
-def test_an_undeclared_parallel_is_not_taken_for_its_neighbour():
-    """The same part with only 25 and 30 mm parallels declared: its height stays the image's own,
-    over a support of unknown height, with the broad sigma that goes with it."""
-    res, obj, err = _run("setup_024", riser_heights_mm=(25.0, 30.0))
+@pytest.mark.parametrize("declared", [(25.0, 30.0), (19.0, 20.0)])
+def test_a_parallel_is_not_taken_unless_the_height_says_which(declared):
+    """The same part with only 25 and 30 mm parallels declared (its own is not among them), or with
+    19 and 20 mm (its fitted 19.5 mm lies between two tops, within 4 sigma of both): its height stays
+    the image's own, over a support of unknown height, with the broad sigma that goes with it."""
+    res, obj, err = _run("setup_024", riser_heights_mm=declared)
     assert obj["riser_mm"] is None
     assert obj["chain"][0].startswith("an unknown support"), obj["chain"]
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
