@@ -46,16 +46,18 @@ WRONG_MM, WRONG_DEG = 1.0, 0.5
 
 # the devset shop's parallels (every parallel_*.stl of its meshes, their heights) are declared as its
 # risers; --no-risers leaves every riser of unknown height
-RISERS = os.environ.get("SETUPCAM_RISERS", "1") != "0"
+RISERS = True
 
 
 @lru_cache(maxsize=4)
 def shop_riser_heights(root: Path) -> tuple[float, ...]:
-    """Heights (mm) of the devset's parallels: each mesh stands on z = 0, its top at its z extent."""
+    """Heights (mm) of the devset's parallels, as the library's supports would declare them."""
     import trimesh
 
-    return tuple(sorted({round(float(trimesh.load(f, force="mesh").bounds[1, 2]), 3)
-                         for f in (Path(root) / "meshes").glob("parallel_*.stl")}))
+    from app.vision.localize import Candidate, riser_heights
+
+    return riser_heights([Candidate(f.stem, trimesh.load(f, force="mesh"), kind="support")
+                          for f in (Path(root) / "meshes").glob("parallel_*.stl")])
 
 
 def scenes(family: str = "setup") -> list[dict]:

@@ -258,8 +258,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         located, not_found = _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done,
                                            min_score=min_score, min_margin=min_margin, photo_view=photo_view,
                                            photo_xy=table_xy, edges=edges, table_cov=table_cov,
-                                           risers=tuple(sorted(set(riser_heights(candidates)) | {
-                                               float(h) for h in (riser_heights_mm or ()) if 0 < float(h) < 1e4})))
+                                           risers=riser_heights(candidates, riser_heights_mm or ()))
     else:
         for cand in ordered:
             t = time.perf_counter()
@@ -495,11 +494,12 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
     return located, not_found
 
 
-def riser_heights(candidates: list[Candidate]) -> tuple[float, ...]:
+def riser_heights(candidates: list[Candidate], declared=()) -> tuple[float, ...]:
     """Heights (mm) of the supports among ``candidates`` (parallels, blocks) standing as modelled:
-    each declared support surface's height above the mesh's lowest point, else the mesh's height.
-    A part over a riser of unknown height is tested against them (``LocateOptions.riser_heights_mm``)."""
-    out: set[float] = set()
+    each declared support surface's height above the mesh's lowest point, else the mesh's height;
+    with the ``declared`` heights that are positive and finite, each once, ascending. A part over a
+    riser of unknown height is tested against them (``LocateOptions.riser_heights_mm``)."""
+    out: set[float] = {float(h) for h in declared if 0 < float(h) < 1e4}
     for c in candidates:
         if c.kind != "support" or c.photo is not None:
             continue

@@ -46,6 +46,7 @@ from app.vision.object_pose.uncertainty import (
     RISER_MAX_SIGMA_MM,
     SNAP_MM,
     covariance,
+    covariance_at,
     hull_points,
     origin_sigma,
     prior_offsets,
@@ -582,7 +583,7 @@ def _fit6(ctx: LocateContext, r: Fit, sides: bool = True, rest_z: float | None =
     conflict = "sol" in info6 and np.max(np.abs(prior_offsets(T6, pr))) > MAX_PRIOR_SIGMAS
     if conflict and held:      # the image does not let it touch the face: judge it without
         return _fit6(ctx, r, sides=False, rest_z=rest_z)
-    return ContactFit(best=r, T6=T6, info6=info6, prior=pr, conflict=bool(conflict), riser_mm=None)
+    return ContactFit(best=r, T6=T6, info6=info6, prior=pr, conflict=bool(conflict))
 
 
 def _contact_fit(ctx: LocateContext, best: Fit, fits: list[Fit]) -> ContactFit:
@@ -621,9 +622,7 @@ def _declared_riser(ctx: LocateContext, cf: ContactFit) -> ContactFit:
     cov = covariance(cf.info6, ctx.K, ctx.dist, ctx.T_cam_table, data_scale=o.sigma_scale)[0]
     P = transform_points(cf.T6, ctx.hull_obj)
     low = P[int(np.argmin(P[:, 2]))]
-    d = low - cf.info6["c_table"]
-    g = np.array([0.0, 0.0, 1.0, d[1], -d[0], 0.0])       # d(lowest z) / d(t, rotation vector)
-    sz = float(np.sqrt(max(g @ cov @ g, 0.0)))
+    sz = float(np.sqrt(max(covariance_at(cov, cf.info6["c_table"], low)[2, 2], 0.0)))
     if not np.isfinite(sz) or sz > RISER_MAX_SIGMA_MM:
         return cf
     heights = {}

@@ -235,16 +235,20 @@ def _prior_information(info: dict, p: np.ndarray) -> np.ndarray | None:
     return (Jp.T @ Jp)[np.ix_(free, free)]
 
 
+def covariance_at(cov: np.ndarray, centre: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """A 6x6 covariance of (shift mm, rotation vector rad) about ``centre`` moved to a point of the
+    part (table frame, mm): ``point' = centre + R(dr) (point - centre) + dt``."""
+    lever = np.asarray(point, float) - np.asarray(centre, float)
+    A = np.eye(6)
+    A[:3, 3:] = -np.array([[0, -lever[2], lever[1]], [lever[2], 0, -lever[0]], [-lever[1], lever[0], 0]])
+    return A @ cov @ A.T
+
+
 def origin_sigma(cov: np.ndarray, T_table_obj: np.ndarray, model: PreparedModel) -> tuple[np.ndarray, dict]:
     """The fit's covariance (about the part's centre) moved to the obj frame's origin, the datum:
     ``origin = c + R(dr) (o - c) + dt``. Returns (6x6 of (origin x, y, z mm, rotation vector rad),
     1-sigma dict ``x_mm, y_mm, z_mm, rx_deg, ry_deg, rz_deg``), table axes."""
-    o = T_table_obj[:3, 3]
-    c = transform_points(T_table_obj, model.center_obj[None])[0]
-    lever = o - c
-    A = np.eye(6)
-    A[:3, 3:] = -np.array([[0, -lever[2], lever[1]], [lever[2], 0, -lever[0]], [-lever[1], lever[0], 0]])
-    cov_o = A @ cov @ A.T
+    cov_o = covariance_at(cov, transform_points(T_table_obj, model.center_obj[None])[0], T_table_obj[:3, 3])
     sd = np.sqrt(np.maximum(np.diag(cov_o), 0))
     sigma = {"x_mm": float(sd[0]), "y_mm": float(sd[1]), "z_mm": float(sd[2]),
              "rx_deg": float(np.degrees(sd[3])), "ry_deg": float(np.degrees(sd[4])),

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from app.geometry.model_edges import prepare_model
+from app.geometry.model_edges import prepare_model, project_points_px
 from app.geometry.transforms import pose_from_xyz_euler, transform_points
 from app.synth.scene import look_at_pose
 from app.vision.object_pose.edge_image import prepare_image
@@ -37,13 +37,13 @@ def _render(stripe: bool) -> np.ndarray:
         P = transform_points(T_cam_obj, BOX.vertices[f])
         if np.dot(T_cam_obj[:3, :3] @ n, P.mean(axis=0)) >= 0:      # faces away from the camera
             continue
-        uv = (Ks @ (P / P[:, 2:3]).T).T[:, :2]
+        uv = project_points_px(P, Ks)
         shade = 0.15 + 0.6 * max(0.0, float(np.dot(T_TRUE[:3, :3] @ n, light)))
         cv2.fillConvexPoly(lin, np.round(uv * 16).astype(np.int32), float(shade), lineType=cv2.LINE_8, shift=4)
     if stripe:
         # the silhouette edge on the image's left: the box's x = -40, y = -25 vertical edge
         a = transform_points(T_cam_obj, np.array([[-40.0, -25.0, 0.0], [-40.0, -25.0, 30.0]]))
-        uv = (Ks @ (a / a[:, 2:3]).T).T[:, :2]
+        uv = project_points_px(a, Ks)
         d = uv[1] - uv[0]
         out = np.array([-d[1], d[0]]) / np.linalg.norm(d)
         if out[0] > 0:
