@@ -396,6 +396,8 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
     removed from the image and their bodies as occluders."""
     from app.vision.object_pose.clamping import fixture_faces
     from app.vision.support_chain import (
+        FIXTURE_RISERS_MM,
+        TABLE_RISERS_MM,
         declared_surfaces,
         search_planes,
         support_surfaces,
@@ -440,7 +442,9 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
         if fixture:     # a fixture stands directly on a face found so far
             planes = search_planes(seats, radius, table_risers=(0.0,), fixture_risers=(0.0,))
         else:
-            planes = search_planes(surfaces, radius)
+            # the declared risers' tops are searched too (a parallel's 25 mm falls between the 7.5 mm steps)
+            planes = search_planes(surfaces, radius, table_risers=tuple(sorted({*TABLE_RISERS_MM, *risers})),
+                                   fixture_risers=tuple(sorted({*FIXTURE_RISERS_MM, *risers})))
         guided = {} if carrier_pose is None else {
             "start_poses": guide_start_poses(guide, carrier_pose.T_table_obj),
             "start_capture": (GUIDE_CAPTURE_MM, GUIDE_CAPTURE_DEG),

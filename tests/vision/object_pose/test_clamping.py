@@ -72,7 +72,7 @@ def test_each_stance_and_a_known_surface_keep_their_best_start():
 
     model = prepare_model(trimesh.creation.box((60.0, 40.0, 20.0)), name="block")
     ctx = SimpleNamespace(model=model, pos_tol=2.0, opts=SimpleNamespace(n_refine=2),
-                          on_known_surface=lambda T: abs(T[2, 3] - 10.0) < 0.5)
+                          on_known_surface=lambda T: abs(T[2, 3] - 10.0) < 0.5, declared_riser_top=lambda T: None)
 
     def hyp(state, x, z, score):
         return Hyp(state=state, T_table_obj=make_pose(None, (x, 0.0, z)), score=score)
@@ -82,3 +82,26 @@ def test_each_stance_and_a_known_surface_keep_their_best_start():
     weak = hyp(2, -300.0, 10.0, RESERVE_SHARE * 0.72 - 0.01)
     picked = [id(h) for h in _distinct(ctx, floating + [upright, weak])]
     assert picked == [id(floating[0]), id(floating[1]), id(upright)]
+
+
+def test_each_stance_keeps_its_best_start_on_each_declared_riser():
+    """Readings of one stance on the shop's 20, 25 and 30 mm parallels slide along the line of sight
+    and score alike at the start (devset setup_001: the true one 0.55 against 0.59 and 0.58): the
+    best start of the stance on each declared top reaches the fine fit, which holds its height."""
+    from app.geometry.model_edges import prepare_model
+    from app.vision.object_pose.locate import _distinct
+    from app.vision.object_pose.search import Hyp
+
+    model = prepare_model(trimesh.creation.box((60.0, 40.0, 20.0)), name="block")
+    tops = (20.0, 25.0, 30.0)
+    ctx = SimpleNamespace(model=model, pos_tol=2.0, opts=SimpleNamespace(n_refine=1),
+                          on_known_surface=lambda T: False,
+                          declared_riser_top=lambda T: next((t for t in tops if abs(T[2, 3] - t) < 0.5), None))
+
+    def hyp(x, z, score):
+        return Hyp(state=0, T_table_obj=make_pose(None, (x, 0.0, z)), score=score)
+
+    best, on25, on30, between = hyp(0.0, 25.0, 0.62), hyp(-8.0, 25.0, 0.60), hyp(5.0, 30.0, 0.59), hyp(2.0, 27.5, 0.58)
+    on20, on20_again = hyp(-5.0, 20.0, 0.55), hyp(-40.0, 20.0, 0.54)
+    picked = [id(h) for h in _distinct(ctx, [best, on25, on30, between, on20, on20_again])]
+    assert picked == [id(best), id(on30), id(on20)]
