@@ -47,8 +47,8 @@ FIXTURE_MIN_SCORE = 0.35
 # for the fine fit (devset vise bodies located 8 -> 10 of 16, about 2-4 s more per fixture). Its plane
 # search is denser too (cells of at most 8 mm, 120 re-scored, 10 starts): a half-hidden vise's true
 # cell ranked 57th-376th on the 16 mm grid and never reached the fine stage (9 -> 13 of 16, ~1 s more).
-FIXTURE_OPTIONS = {"contact_sigma_mm": 0.05, "contact_sigma_deg": 0.05, "settle_starts": True,
-                   "n_coarse": 120, "coarse_step_max_mm": 8.0, "n_starts": 10}
+FIXTURE_OPTIONS = {"contact_sigma_mm": 0.05, "contact_sigma_deg": 0.05, "free_contact_sigma_deg": 0.05,
+                   "settle_starts": True, "n_coarse": 120, "coarse_step_max_mm": 8.0, "n_starts": 10}
 
 # BGR colours per object, in order (workpiece first): distinct on grey metal.
 COLOURS = [(0, 220, 0), (255, 160, 0), (0, 200, 255), (255, 0, 255), (255, 255, 0), (80, 80, 255)]

@@ -215,3 +215,12 @@ def test_small_part_on_the_table_is_located():
     err = pose_error_6dof(np.asarray(obj["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"]), wp.prepare())
     assert np.linalg.norm(err[:3]) < 0.3 and np.nanmax(np.abs(err[3:])) < 0.5, err
 
+
+def test_a_part_lying_free_on_the_table_may_tilt():
+    """A pocketed block lying on the table, tilted 0.5 deg by something under one edge: held to the
+    0.3 deg tilt of a clamped part its pose was 0.40 mm off; lying free, 0.5 deg, it is within 0.3 mm."""
+    res, obj, err = _run("setup_000")
+    assert res.ok, res.reason
+    assert obj["chain"] == ["table"], obj["chain"]
+    assert np.linalg.norm(err[:3]) < 0.3 and np.nanmax(np.abs(err[3:])) < 0.25, err
+    assert _within_3_sigma(obj, err), (err, obj["sigma"])

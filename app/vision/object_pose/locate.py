@@ -640,8 +640,10 @@ def _fit6(ctx: LocateContext, r: Fit, sides: bool = True, rest_z: float | None =
     ra = None if model.continuous_axis_obj is None else r.T[:3, :3] @ model.continuous_axis_obj
     T_rest = r.T if rest_z is None else make_pose(None, [0.0, 0.0, rest_z - ctx.lowest_z(r.T)]) @ r.T
     known = rest_z is not None or ctx.on_known_surface(r.T)
-    pr = (T_rest, o.contact_sigma_mm if known else o.riser_sigma_mm, np.radians(o.contact_sigma_deg), ctx.hull_obj)
     held = side_contacts(ctx.clamp_faces, ctx.hull_obj, T_rest, o.contact_sigma_mm) if sides else []
+    lying_free = known and not held and abs(ctx.lowest_z(T_rest)) < 0.5     # on the table itself (z = 0)
+    tilt_deg = o.free_contact_sigma_deg if lying_free else o.contact_sigma_deg
+    pr = (T_rest, o.contact_sigma_mm if known else o.riser_sigma_mm, np.radians(tilt_deg), ctx.hull_obj)
     if held:
         pr = pr + (tuple(held),)
     T6, info6 = ctx.refine(T_rest, FREE_6DOF, (2.0, 2.0), round_axis_table=ra, prior=pr, reweight=o.final_reweight)
