@@ -491,16 +491,16 @@ def _sharp_score(ctx: LocateContext, T: np.ndarray) -> float:
 
 
 def _sharper(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Fit:
-    """Of the converged fits at ``best``'s place in its stance that score within half the margin of
-    it and explain about as much of the image (90 % of its supported edge length), the one whose edges
-    match clearly more sharply (:data:`SHARPER_BY` at :data:`SHARP_PX`), else ``best``. Another stance
-    is not judged so: a housing turned over is a plain outline that matches sharply (devset
-    moved_005_a: 97 % within 0.5 px against 79 %, but 30 % less edge length explained).
+    """Of the converged fits at ``best``'s place that score within half the margin of it and explain
+    about as much of the image (90 % of its supported edge length), the one whose edges match clearly
+    more sharply (:data:`SHARPER_BY` at :data:`SHARP_PX`), else ``best``.
 
     Readings slid along the line of sight (a bracket in a vise on a 20, 25 or 30 mm parallel: devset
-    setup_001) project to nearly the same outline and support 74-75 % of their edges at 1.5 px each;
-    at 0.5 px the true one supports 60 % against 48 and 41 %."""
-    cands = _at_same_place(ctx, best, fits, lambda r: r.state == best.state and r.support_px >= 0.9 * best.support_px
+    setup_001) project to nearly the same outline and support 74-75 % of their edges at 1.5 px each
+    (turned over, 72 %); at 0.5 px the true one supports 60 % against 48, 41 and 25 %. A simpler
+    reading is not judged so: a housing turned over is a plain outline that matches sharply (devset
+    moved_005_a: 97 % within 0.5 px against 79 %) but explains 30 % less edge length."""
+    cands = _at_same_place(ctx, best, fits, lambda r: r.support_px >= 0.9 * best.support_px
                            and r.score >= best.score - 0.5 * ctx.opts.min_margin)
     if not cands:
         return best
@@ -544,12 +544,14 @@ def _rivals(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Rivals:
         # the same holds the face up decided
         u_best = ctx.unexplained(best.T)
         rivals = [r for r in rivals if ctx.unexplained(r.T) < u_best + CLEARER_BY]
-        # nor one whose edges match clearly less sharply (the part slid along the line of sight), nor
-        # one that the 6-DoF fit brings back to the best's place (a 25 mm parallel's reading of a part
-        # on its 20 mm one: the fitted height decides, devset setup_022)
+        # nor one whose edges match clearly less sharply (the part slid along the line of sight; or
+        # turned over, explaining no more edge length: setup_001's bracket, 23 % within 0.5 px against
+        # 60 %), nor one that the 6-DoF fit brings back to the best's place (a 25 mm parallel's reading
+        # of a part on its 20 mm one: the fitted height decides, devset setup_022)
         if rivals:
             s_best = _sharp_score(ctx, best.T)
-            rivals = [r for r in rivals if r.state != best.state or _sharp_score(ctx, r.T) > s_best - SHARPER_BY]
+            rivals = [r for r in rivals if (r.state != best.state and r.support_px > best.support_px)
+                      or _sharp_score(ctx, r.T) > s_best - SHARPER_BY]
         if rivals:
             T6_best = _fit6(ctx, best).T6
             rivals = [r for r in rivals if not same_up_to_symmetry(model, _fit6(ctx, r).T6, T6_best, tol, 4.0,

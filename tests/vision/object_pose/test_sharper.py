@@ -36,10 +36,18 @@ def test_not_when_only_a_little_sharper():
     assert _sharper(_ctx([best, other]), best, [best, other]) is best
 
 
-def test_another_stance_or_a_simpler_outline_is_not_judged_by_sharpness():
+def test_a_simpler_outline_is_not_judged_by_sharpness():
     """Devset moved_005_a: the housing turned over is a plain outline, 97 % within 0.5 px against 79 %,
     but it explains 30 % less edge length; of the same stance, so little edge is not enough either."""
     best = _fit(0, 0.0, 0.889, 2736.0, 0.79)
     flipped = _fit(1, 60.0, 0.896, 1925.0, 0.97)
     thin = _fit(0, 5.0, 0.889, 1925.0, 0.97)
     assert _sharper(_ctx([best, flipped, thin]), best, [best, flipped, thin]) is best
+
+
+def test_another_stance_that_explains_as_much_and_matches_clearly_more_sharply_is_taken():
+    """Devset setup_001: the bracket turned over on the vise's jaws, 72 % at 1.5 px and 25 % at 0.5 px,
+    against its true pose on its parallel, 74 % and 60 %, with about the same edge length."""
+    # (poses stand in for their centres here, 1.4 mm apart in the scene)
+    best, true = _fit(1, 91.4, 0.721, 972.0, 0.25), _fit(2, 90.0, 0.742, 986.0, 0.60)
+    assert _sharper(_ctx([best, true]), best, [best, true]) is true
