@@ -701,11 +701,11 @@ def visible_edge_samples(model: PreparedModel, T_cam_obj: np.ndarray, K: np.ndar
     idx = idx[show_edge[model.sample_edge[idx]]]
     P_obj = model.samples_obj[idx]
     P_cam = transform_points(T_cam_obj, P_obj)
-    uv = project_points_px(P_cam, K, dist)
-    # image normal from the projected edge direction
+    # image normal from the projected edge direction; the samples and their points a little along
+    # the edge projected in one call (pointwise: the same numbers, half the calls on a few hundred)
     D_cam = model.sample_dir_obj[idx] @ T_cam_obj[:3, :3].T
     eps = np.maximum(0.05 * model.sample_step_mm, 1e-3)
-    uv2 = project_points_px(P_cam + D_cam * eps, K, dist)
+    uv, uv2 = project_points_px(np.concatenate([P_cam, P_cam + D_cam * eps]), K, dist).reshape(2, len(idx), 2)
     t = uv2 - uv
     tn = np.linalg.norm(t, axis=1)
     inside = (np.isfinite(uv).all(1) & (uv[:, 0] >= margin_px) & (uv[:, 1] >= margin_px)
