@@ -271,9 +271,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         corr = sfft.irfft2(np.conj(np.einsum("kij,kij->ij", FSc_used, FK)), s=(Py, Px), workers=-1)
         score[it] = np.roll(corr, (Rk, Rk), axis=(0, 1))[:ny, :nx]
     flat = score.ravel()
-    k = min(len(flat), 20 * n_coarse)
-    top = np.argpartition(-flat, k - 1)[:k]
-    top = top[np.argsort(-flat[top])]
+    top = _top_k(flat, min(len(flat), 20 * n_coarse))
     it_, rem = np.divmod(top, ny * nx)
     iy_, ix_ = np.divmod(rem, nx)
     cx, cy, cth = x0 + ix_ * b, y0 + iy_ * b, it_ * dth
@@ -436,6 +434,34 @@ def _kernel_cache(cache: dict, key: tuple) -> list:
         held = (key, [])
         cache["coarse_kernels"] = held
     return held[1]
+
+
+def _top_k_partitioned(flat: np.ndarray, k: int) -> np.ndarray:
+    """Indices of the ``k`` largest of ``flat``, largest first: a partition of all, then a sort."""
+    top = np.argpartition(-flat, k - 1)[:k]
+    return top[np.argsort(-flat[top])]
+
+
+def _top_k(flat: np.ndarray, k: int) -> np.ndarray:
+    """:func:`_top_k_partitioned` from the few values above a threshold instead of all (the coarse
+    scores: ~2 million, k = 800; measured 21 -> 1.3 ms on a loaded machine). The threshold is a value
+    that about k / 4 of every 16th value exceed. Where the k + 1 largest are all distinct the answer
+    is unique, and the same; where two are equal (a symmetric part's turns: 32 of the 58 planes of
+    setup_010 with 20 models), which of them comes first is the partition's own choice: that case
+    (and a threshold that let too few through) goes to the partition of all."""
+    if len(flat) <= 8 * k:
+        return _top_k_partitioned(flat, k)
+    sample = flat[::16]
+    thr = np.partition(sample, len(sample) - 1 - k // 4)[len(sample) - 1 - k // 4]
+    cand = np.flatnonzero(flat >= thr)
+    if len(cand) <= k:
+        return _top_k_partitioned(flat, k)
+    v = flat[cand]
+    sel = np.argpartition(-v, k)[: k + 1]
+    sel = sel[np.argsort(-v[sel])]
+    if not np.all(v[sel[:-1]] > v[sel[1:]]):
+        return _top_k_partitioned(flat, k)
+    return cand[sel[:k]]
 
 
 def _nms(x, y, th, r_xy, r_th, n_max) -> list[int]:
