@@ -15,6 +15,7 @@ distortion ``dist = (k1, k2, p1, p2, k3)``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -134,6 +135,13 @@ class PreparedModel:
     def face_normals(self) -> np.ndarray:
         """(F, 3) unit face normals, obj frame: denoised for a scan, else the mesh's own."""
         return self.mesh.face_normals if self.denoised_normals is None else self.denoised_normals
+
+    @cached_property
+    def face_planes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(F, 3) face normals (:attr:`face_normals`) and (F, 3) a vertex of each face, obj frame, mm:
+        which side of each face a point is on. Read from the mesh once per model: trimesh checks its
+        cache (hashing the mesh) on every access, 30 to 60 us, and the fits ask ~10^4 times per image."""
+        return self.face_normals, self.mesh.vertices[self.mesh.faces[:, 0]]
 
     def to_dict(self) -> dict:
         return {
@@ -666,8 +674,8 @@ def resting_pose(model: PreparedModel, state: int, x_mm: float, y_mm: float, the
 def _front_facing(model: PreparedModel, T_cam_obj: np.ndarray) -> np.ndarray:
     """(F,) bool: face turned towards the camera (camera centre on the face's outer side)."""
     cam_obj = inv(T_cam_obj)[:3, 3]
-    tri0 = model.mesh.vertices[model.mesh.faces[:, 0]]
-    return np.einsum("ij,ij->i", model.face_normals, cam_obj - tri0) > 0
+    normals, tri0 = model.face_planes
+    return np.einsum("ij,ij->i", normals, cam_obj - tri0) > 0
 
 
 def visible_edge_samples(model: PreparedModel, T_cam_obj: np.ndarray, K: np.ndarray, dist,
@@ -693,11 +701,11 @@ def visible_edge_samples(model: PreparedModel, T_cam_obj: np.ndarray, K: np.ndar
     idx = idx[show_edge[model.sample_edge[idx]]]
     P_obj = model.samples_obj[idx]
     P_cam = transform_points(T_cam_obj, P_obj)
-    uv = project_points_px(P_cam, K, dist)
-    # image normal from the projected edge direction
+    # image normal from the projected edge direction; the samples and their points a little along
+    # the edge projected in one call (pointwise: the same numbers, half the calls on a few hundred)
     D_cam = model.sample_dir_obj[idx] @ T_cam_obj[:3, :3].T
     eps = np.maximum(0.05 * model.sample_step_mm, 1e-3)
-    uv2 = project_points_px(P_cam + D_cam * eps, K, dist)
+    uv, uv2 = project_points_px(np.concatenate([P_cam, P_cam + D_cam * eps]), K, dist).reshape(2, len(idx), 2)
     t = uv2 - uv
     tn = np.linalg.norm(t, axis=1)
     inside = (np.isfinite(uv).all(1) & (uv[:, 0] >= margin_px) & (uv[:, 1] >= margin_px)

@@ -62,11 +62,13 @@ def planar_fit(eimg, model, hyp: Hyp, T_cam_table, K, dist, subset, radii=(14.0,
             e = res[ok]
             J = np.zeros((len(X), 3))
             base = es.uv_px[ok]
-            for k, h in enumerate((0.5, 0.5, 0.002)):
-                q = np.zeros(3)
-                q[k] = h
-                uvk = project_points_px(transform_points(T_cam_table @ perturb3(T, c_table, q), X), K, dist)
-                J[:, k] = np.einsum("ij,ij->i", n, (uvk - base) / h)
+            # the three moved poses' points projected in one call (pointwise arithmetic: the same
+            # numbers as one call each, a third of the calls' overhead on a few hundred points)
+            steps = (0.5, 0.5, 0.002)
+            moved = [transform_points(T_cam_table @ perturb3(T, c_table, q), X) for q in np.diag(steps)]
+            uvs = project_points_px(np.concatenate(moved), K, dist).reshape(3, len(X), 2)
+            for k, h in enumerate(steps):
+                J[:, k] = np.einsum("ij,ij->i", n, (uvs[k] - base) / h)
             w = np.minimum(1.0, (0.5 * r) / np.maximum(np.abs(e), 1e-9))   # Huber weights
             A = J.T @ (J * w[:, None]) + np.diag([1e-6, 1e-6, 1e-2])
             dq = -np.linalg.solve(A, J.T @ (w * e))

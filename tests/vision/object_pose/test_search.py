@@ -179,3 +179,17 @@ def test_padded_template_spectra_are_rfft2s():
         want = sfft.rfft2(ker, s=(Py, Px))
         got = _padded_rfft2(ker, Py, Px)
         assert got.dtype == want.dtype and np.array_equal(got, want)
+
+
+def test_top_k_from_a_threshold_is_the_partitions_answer():
+    """The coarse scores' k best taken from the values above a sampled threshold (:func:`_top_k`)
+    are the partition's of all (:func:`_top_k_partitioned`), in the same order; with equal values
+    among them, which comes first is the partition's choice, so those go to it."""
+    from app.vision.object_pose.search import _top_k, _top_k_partitioned
+
+    rng = np.random.default_rng(5)
+    for n, k in ((2_000_000, 800), (50_000, 800), (5_000, 800), (100_000, 40)):
+        flat = rng.normal(size=n).astype(np.float32)
+        assert np.array_equal(_top_k(flat, k), _top_k_partitioned(flat, k))
+    tied = np.round(rng.normal(size=200_000), 2).astype(np.float32)      # many equal values
+    assert np.array_equal(_top_k(tied, 800), _top_k_partitioned(tied, 800))
