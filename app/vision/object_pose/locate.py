@@ -194,6 +194,8 @@ class LocateContext:
     px_per_mm: float = 1.0
     _sub_fine: np.ndarray | None = field(default=None, repr=False)
     _unexplained: dict = field(default_factory=dict, repr=False)
+    _sharp: dict = field(default_factory=dict, repr=False)
+    _fit6: dict = field(default_factory=dict, repr=False)
 
     @property
     def pos_tol(self) -> float:
@@ -215,13 +217,25 @@ class LocateContext:
         z0 = self.lowest_z(T)
         return any(abs(z0 - h) < 0.5 for h in self.known_heights_mm)
 
+    @property
+    def declared_tops(self) -> dict[float, float]:
+        """The declared risers' tops: table z (mm, to 0.01) of a known surface plus one of
+        ``riser_heights_mm`` -> that riser's height (the first declared, where two tops coincide)."""
+        tops: dict[float, float] = {}
+        if self.known_heights_mm is not None:
+            for h in self.known_heights_mm:
+                for r in self.opts.riser_heights_mm:
+                    if r > 0:
+                        tops.setdefault(round(h + r, 2), r)
+        return tops
+
     def declared_riser_top(self, T: np.ndarray) -> float | None:
-        """The height (table z, mm) of the declared riser's top (a known surface plus one of
-        ``riser_heights_mm``) that pose ``T``'s lowest point is on, within 0.5 mm; None if none."""
-        if self.known_heights_mm is None or not self.opts.riser_heights_mm:
+        """The height (table z, mm, to 0.1) of the declared riser's top (:attr:`declared_tops`) that
+        pose ``T``'s lowest point is on, within 0.5 mm; None if none."""
+        tops = self.declared_tops
+        if not tops:
             return None
         z0 = self.lowest_z(T)
-        tops = [h + r for h in self.known_heights_mm for r in self.opts.riser_heights_mm if r > 0]
         near = [t for t in tops if abs(z0 - t) < 0.5]
         return round(min(near, key=lambda t: abs(z0 - t)), 1) if near else None
 
@@ -235,6 +249,14 @@ class LocateContext:
         if key not in self._unexplained:
             self._unexplained[key] = unexplained_edges(self.eimg, self.model, self.T_cam_table @ T, self.K, self.dist)
         return self._unexplained[key]
+
+    def sharp(self, T: np.ndarray) -> float:
+        """Share of the visible model edge samples at ``T_table_obj`` with an image edge within
+        :data:`SHARP_PX`, once per pose (:func:`_sharper` and :func:`_rivals` both ask for the best's)."""
+        key = np.asarray(T, float).tobytes()
+        if key not in self._sharp:
+            self._sharp[key] = self.support(T, support_px=SHARP_PX)[0]
+        return self._sharp[key]
 
     def support(self, T, support_px: float = 1.5):
         return edge_support(self.eimg, self.model, T, self.T_cam_table, self.K, self.dist, self.occluders_cam,
@@ -485,11 +507,6 @@ SHARP_PX = 0.5
 SHARPER_BY = 0.1
 
 
-def _sharp_score(ctx: LocateContext, T: np.ndarray) -> float:
-    """Share of the visible model edge samples with an image edge within :data:`SHARP_PX`."""
-    return ctx.support(T, support_px=SHARP_PX)[0]
-
-
 def _sharper(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Fit:
     """Of the converged fits at ``best``'s place that score within half the margin of it and explain
     about as much of the image (90 % of its supported edge length), the one whose edges match clearly
@@ -504,8 +521,8 @@ def _sharper(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Fit:
                            and r.score >= best.score - 0.5 * ctx.opts.min_margin)
     if not cands:
         return best
-    s_best = _sharp_score(ctx, best.T)
-    s, sharper = max(((_sharp_score(ctx, r.T), r) for r in cands), key=lambda t: t[0])
+    s_best = ctx.sharp(best.T)
+    s, sharper = max(((ctx.sharp(r.T), r) for r in cands), key=lambda t: t[0])
     return sharper if s > s_best + SHARPER_BY else best
 
 
@@ -549,9 +566,9 @@ def _rivals(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Rivals:
         # 60 %), nor one that the 6-DoF fit brings back to the best's place (a 25 mm parallel's reading
         # of a part on its 20 mm one: the fitted height decides, devset setup_022)
         if rivals:
-            s_best = _sharp_score(ctx, best.T)
+            s_best = ctx.sharp(best.T)
             rivals = [r for r in rivals if (r.state != best.state and r.support_px > best.support_px)
-                      or _sharp_score(ctx, r.T) > s_best - SHARPER_BY]
+                      or ctx.sharp(r.T) > s_best - SHARPER_BY]
         if rivals:
             T6_best = _fit6(ctx, best).T6
             rivals = [r for r in rivals if not same_up_to_symmetry(model, _fit6(ctx, r).T6, T6_best, tol, 4.0,
@@ -641,7 +658,16 @@ class ContactFit:
 def _fit6(ctx: LocateContext, r: Fit, sides: bool = True, rest_z: float | None = None) -> ContactFit:
     """The 6-DoF fit of flat fit ``r`` with its contact prior: on a known surface (or, given
     ``rest_z``, with its lowest point on that height: a declared riser) within the contact's sigma,
-    else over a riser of unknown height; held by the jaw faces it touches unless ``sides`` is False."""
+    else over a riser of unknown height; held by the jaw faces it touches unless ``sides`` is False.
+    Fitted once per call and arguments (:func:`_rivals` and :func:`_contact_fit` both ask for the
+    best's; the cached result holds ``r``, so its ``id`` stays unique)."""
+    key = (id(r), sides, rest_z)
+    if key not in ctx._fit6:
+        ctx._fit6[key] = _fit6_uncached(ctx, r, sides, rest_z)
+    return ctx._fit6[key]
+
+
+def _fit6_uncached(ctx: LocateContext, r: Fit, sides: bool, rest_z: float | None) -> ContactFit:
     o, model = ctx.opts, ctx.model
     ra = None if model.continuous_axis_obj is None else r.T[:3, :3] @ model.continuous_axis_obj
     T_rest = r.T if rest_z is None else make_pose(None, [0.0, 0.0, rest_z - ctx.lowest_z(r.T)]) @ r.T
@@ -698,11 +724,7 @@ def _declared_riser(ctx: LocateContext, cf: ContactFit) -> ContactFit:
     sz = float(np.sqrt(max(covariance_at(cov, cf.info6["c_table"], low)[2, 2], 0.0)))
     if not np.isfinite(sz) or sz > RISER_MAX_SIGMA_MM:
         return cf
-    heights = {}
-    for h in ctx.known_heights_mm:
-        for r in o.riser_heights_mm:
-            if r > 0:
-                heights.setdefault(round(h + r, 2), r)
+    heights = ctx.declared_tops
     z = np.array(sorted(heights))
     m = np.abs(z - low[2]) / max(sz, 1e-6)
     order = np.argsort(m)

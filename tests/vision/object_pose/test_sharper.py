@@ -21,7 +21,7 @@ def _ctx(fits):
     by_z = {round(float(f.T[2, 3]), 3): f.sharp for f in fits}
     return SimpleNamespace(model=SimpleNamespace(center_obj=np.zeros(3), diameter_mm=100.0),
                            opts=SimpleNamespace(min_margin=0.1),
-                           support=lambda T, support_px: (by_z[round(float(T[2, 3]), 3)], None, None))
+                           sharp=lambda T: by_z[round(float(T[2, 3]), 3)])
 
 
 def test_a_reading_of_the_same_stance_that_matches_clearly_more_sharply_is_taken():
