@@ -137,6 +137,18 @@ class PreparedModel:
         return self.mesh.face_normals if self.denoised_normals is None else self.denoised_normals
 
     @cached_property
+    def support_vertices(self) -> np.ndarray:
+        """(V, 3) the vertices that can rest on a surface, obj frame, mm: all of them, except for a
+        fixture standing as modelled (:func:`prepare_model`'s ``upright_only``) whose mesh reaches
+        below its standing face, such as a strap clamp's stud down into the T-slot: those at or
+        above that face."""
+        V = np.asarray(self.mesh.vertices, dtype=float)
+        if len(self.resting_states) != 1 or self.resting_states[0].cad_axis != "+z":
+            return V
+        z = transform_points(self.resting_states[0].T_rest_obj, V)[:, 2]
+        return V[z >= -STANDING_TOL_MM]
+
+    @cached_property
     def face_planes(self) -> tuple[np.ndarray, np.ndarray]:
         """(F, 3) face normals (:attr:`face_normals`) and (F, 3) a vertex of each face, obj frame, mm:
         which side of each face a point is on. Read from the mesh once per model: trimesh checks its
@@ -570,8 +582,9 @@ def prepare_model(mesh: trimesh.Trimesh, name: str = "model", *, feature_angle_d
     sample_step_mm : spacing of the edge samples; default diameter / 300 within [0.25, 4] mm
     max_resting_states, min_resting_probability : keep the likeliest stable poses (at least one);
         the stances with the CAD z axis up and down are added when they are not among them
-    upright_only : the only stance is the CAD one (z up, lowest point on the plane): fixtures such as
-        a vise or parallels are modelled standing as they are used and never lie any other way
+    upright_only : the only stance is the CAD one (z up, its standing face on the plane:
+        :func:`standing_height`): fixtures such as a vise, parallels or a strap clamp set are modelled
+        standing as they are used and never lie any other way
     """
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"model {name!r}: expected a non-empty triangle mesh")
@@ -652,9 +665,45 @@ def _with_cad_stances(mesh: trimesh.Trimesh, center: np.ndarray, states: list[Re
             continue
         V = np.asarray(mesh.vertices) @ R.T
         cm = R @ center
-        T = make_pose(R, [-cm[0], -cm[1], -float(V[:, 2].min())])
-        out.append(RestingState(T_rest_obj=T, probability=0.0, height_mm=float(np.ptp(V[:, 2])), cad_axis=tag))
+        z0 = standing_height(mesh) if upright_only else float(V[:, 2].min())
+        T = make_pose(R, [-cm[0], -cm[1], -z0])
+        out.append(RestingState(T_rest_obj=T, probability=0.0, height_mm=float(V[:, 2].max() - z0), cad_axis=tag))
     return out
+
+
+#: a fixture's standing face is its lowest downward face with at least this share of the area of its
+#: largest downward face. The devset's strap clamp sets: the heel block's 1200 mm^2 beside the strap's
+#: 2400 mm^2 underside carries the set; the stud's 200 mm^2 end (8 %), 16 mm down in the T-slot, does
+#: not. Its vise's moving jaw rides on its tongue (900 mm^2 against 4800 mm^2, 19 %), 8 mm under the
+#: jaw's underside, on a face of the body's rail.
+STANDING_SHARE = 0.15
+#: faces within this height of each other (mm) are one face; vertices this far under the standing
+#: face still count as on it
+STANDING_TOL_MM = 0.5
+
+
+def standing_height(mesh: trimesh.Trimesh) -> float:
+    """z (CAD frame, mm) of the face a fixture modelled upright stands on: the lowest downward face
+    (faces grouped by height) with :data:`STANDING_SHARE` of the largest one's area. A stud or a
+    key that reaches below it into a T-slot does not carry the fixture. The lowest vertex when the
+    mesh has no downward face."""
+    V = np.asarray(mesh.vertices, dtype=float)
+    down = np.asarray(mesh.face_normals)[:, 2] < -0.99
+    if not down.any():
+        return float(V[:, 2].min())
+    z = V[np.asarray(mesh.faces)[down]][:, :, 2].mean(axis=1)
+    area = np.asarray(mesh.area_faces)[down]
+    order = np.argsort(z)
+    z, area = z[order], area[order]
+    # group faces whose heights lie within the tolerance of the group's lowest face
+    starts = [0]
+    for i in range(1, len(z)):
+        if z[i] - z[starts[-1]] > STANDING_TOL_MM:
+            starts.append(i)
+    bounds = starts + [len(z)]
+    groups = [(float(z[a]), float(area[a:b].sum())) for a, b in zip(bounds[:-1], bounds[1:])]
+    biggest = max(a for _, a in groups)
+    return next(h for h, a in groups if a >= STANDING_SHARE * biggest)
 
 
 def resting_pose(model: PreparedModel, state: int, x_mm: float, y_mm: float, theta_deg: float,

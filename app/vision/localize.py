@@ -557,8 +557,10 @@ def _carrier(surfaces, pose, cand) -> tuple[str, ...]:
     from app.geometry.transforms import transform_points
     from app.vision.support_chain import placed_height_above
 
-    zmin = float(transform_points(pose.T_table_obj, np.asarray(cand.mesh.vertices))[:, 2].min())
-    s = placed_height_above(surfaces, pose.T_table_obj, cand.mesh, tol_mm=1.0)
+    # a strap clamp's stud reaches down into the T-slot: it stands on its heel block's face
+    V = cand.mesh.vertices if cand.prepared is None else cand.prepared.support_vertices
+    zmin = float(transform_points(pose.T_table_obj, np.asarray(V))[:, 2].min())
+    s = placed_height_above(surfaces, pose.T_table_obj, V, tol_mm=1.0)
     if s is None:
         return (f"an unknown support ({zmin:.1f} mm above the table)", "table")
     names = []

@@ -122,11 +122,13 @@ def search_planes(surfaces: list[SupportSurface], part_radius_mm: float, *,
     return out
 
 
-def placed_height_above(surfaces: list[SupportSurface], T_table_obj: np.ndarray, mesh: trimesh.Trimesh,
+def placed_height_above(surfaces: list[SupportSurface], T_table_obj: np.ndarray, vertices_obj: np.ndarray,
                         tol_mm: float = 1.0) -> SupportSurface | None:
     """The surface the placed part rests on: the highest one at or below the part's lowest point
-    (within ``tol_mm``) whose outline holds the part's footprint centre; None if none does."""
-    V = transform_points(T_table_obj, np.asarray(mesh.vertices))
+    (within ``tol_mm``) whose outline holds the part's footprint centre; None if none does.
+    ``vertices_obj``: the part's vertices that can rest on a surface (obj frame, mm;
+    :attr:`app.geometry.model_edges.PreparedModel.support_vertices`)."""
+    V = transform_points(T_table_obj, np.asarray(vertices_obj, dtype=float))
     zmin = float(V[:, 2].min())
     c = V[:, :2].mean(axis=0)
     best = None

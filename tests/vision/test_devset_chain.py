@@ -216,6 +216,29 @@ def test_a_fit_under_the_table_is_no_reading():
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
 
 
+def test_strap_clamps_stand_on_their_heel_blocks():
+    """setup_013: a stepped block under two strap clamp sets, whose studs reach 16 mm down into the
+    T-slots. Standing on their lowest points (the studs' ends) the sets were searched 16 mm too high:
+    one was ambiguous, the other located 27 mm off, and the part was lost. Standing on their heel
+    blocks both are located; their edges known, the part is closer than without them (0.32 mm)."""
+    sc, image, wp = _scene("setup_013")
+    strap = {o["name"]: o for o in sc.gt["objects"] if o.get("subtype") == "strap_clamp"}
+    clamps = [Candidate(n, trimesh.load(DEVSET / o["mesh"], force="mesh"), kind="clamp") for n, o in strap.items()]
+    res = localize(image, sc.K, sc.dist, sc.layout, [wp] + sc.fixture_candidates + clamps,
+                   table_model=sc.table_candidate, chain=True, riser_heights_mm=SHOP_PARALLELS)
+    got = {o["name"]: o for o in res.objects}
+    for c in clamps:
+        assert c.name in got, [n["reason"] for n in res.not_found]
+        err = pose_error_6dof(np.asarray(got[c.name]["T_table_obj"]), np.asarray(strap[c.name]["T_table_object"]),
+                              c.prepare())
+        assert np.linalg.norm(err[:3]) < 0.3 and np.nanmax(np.abs(err[3:])) < 0.1, (c.name, err)
+        assert _within_3_sigma(got[c.name], err), (c.name, err, got[c.name]["sigma"])
+        assert got[c.name]["chain"] == ["table"]
+    err = pose_error_6dof(np.asarray(got[wp.name]["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"]),
+                          wp.prepare())
+    assert np.linalg.norm(err[:3]) < 0.3, err
+
+
 def test_small_part_on_the_table_is_located():
     """setup_025: the angle block alone on the table (no clamp), 530 mm from the camera."""
     sc, image, wp = _scene("setup_025")

@@ -47,9 +47,9 @@ def test_the_carrier_is_the_highest_surface_under_the_part():
     surf = [table_surface()] + support_surfaces(_vise_like(), np.eye(4), "vise")
     part = trimesh.creation.box(bounds=[[0, 0, 0], [60, 40, 30]])
     on_seat = make_pose(None, [70.0, 30.0, 70.0])
-    assert placed_height_above(surf, on_seat, part).carrier == "vise"
+    assert placed_height_above(surf, on_seat, part.vertices).carrier == "vise"
     on_riser = make_pose(None, [70.0, 30.0, 92.0])                          # 22 mm above the seat
-    s = placed_height_above(surf, on_riser, part)
+    s = placed_height_above(surf, on_riser, part.vertices)
     assert s.carrier == "vise" and s.height_mm == 70.0
     beside = make_pose(None, [400.0, 30.0, 0.0])
-    assert placed_height_above(surf, beside, part).carrier == "table"
+    assert placed_height_above(surf, beside, part.vertices).carrier == "table"

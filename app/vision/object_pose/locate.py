@@ -212,7 +212,8 @@ class LocateContext:
         return self._sub_fine
 
     def lowest_z(self, T: np.ndarray) -> float:
-        return float(transform_points(T, self.model.mesh.vertices)[:, 2].min())
+        """Height (table z, mm) of the lowest point at ``T_table_obj`` that can rest on a surface."""
+        return float(transform_points(T, self.model.support_vertices)[:, 2].min())
 
     def under_table(self, T: np.ndarray) -> bool:
         """Pose ``T`` reaches below the table top (z = 0) by more than a freely fitted height is

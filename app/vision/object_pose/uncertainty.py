@@ -5,6 +5,7 @@ transfer to the part's datum. Covariances are over p = (t mm, rotation vector ra
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 from scipy.spatial.transform import Rotation
 
 from app.geometry.model_edges import PreparedModel, project_points_px
@@ -87,11 +88,14 @@ def prior_offsets(T: np.ndarray, prior) -> np.ndarray:
 
 
 def hull_points(model: PreparedModel, max_n: int = 400) -> np.ndarray:
-    """Vertices of the model's convex hull (obj frame, mm), at most ``max_n``: where it can touch."""
+    """Vertices of the convex hull of the model's :attr:`~app.geometry.model_edges.PreparedModel.support_vertices`
+    (obj frame, mm), at most ``max_n``: where it can touch."""
+    v = np.asarray(model.support_vertices, dtype=np.float64)
     try:
-        v = np.asarray(model.mesh.convex_hull.vertices, dtype=np.float64)
-    except Exception:  # noqa: BLE001 - a degenerate (flat) mesh has no hull; its vertices will do
-        v = np.asarray(model.mesh.vertices, dtype=np.float64)
+        hull = model.mesh.convex_hull if len(v) == len(model.mesh.vertices) else trimesh.convex.convex_hull(v)
+        v = np.asarray(hull.vertices, dtype=np.float64)
+    except Exception:  # noqa: BLE001 - a degenerate (flat) point set has no hull; its points will do
+        pass
     if len(v) > max_n:
         v = v[np.linspace(0, len(v) - 1, max_n).astype(np.int64)]
     return v
