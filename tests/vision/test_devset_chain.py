@@ -216,27 +216,43 @@ def test_a_fit_under_the_table_is_no_reading():
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
 
 
-def test_strap_clamps_stand_on_their_heel_blocks():
-    """setup_013: a stepped block under two strap clamp sets, whose studs reach 16 mm down into the
-    T-slots. Standing on their lowest points (the studs' ends) the sets were searched 16 mm too high:
-    one was ambiguous, the other located 27 mm off, and the part was lost. Standing on their heel
-    blocks both are located; their edges known, the part is closer than without them (0.32 mm)."""
-    sc, image, wp = _scene("setup_013")
+def _with_strap_clamps(scene_id: str):
+    """The scene located with its strap clamp sets in the library; (result, clamps, their truth)."""
+    sc, image, wp = _scene(scene_id)
     strap = {o["name"]: o for o in sc.gt["objects"] if o.get("subtype") == "strap_clamp"}
     clamps = [Candidate(n, trimesh.load(DEVSET / o["mesh"], force="mesh"), kind="clamp") for n, o in strap.items()]
     res = localize(image, sc.K, sc.dist, sc.layout, [wp] + sc.fixture_candidates + clamps,
                    table_model=sc.table_candidate, chain=True, riser_heights_mm=SHOP_PARALLELS)
-    got = {o["name"]: o for o in res.objects}
-    for c in clamps:
-        assert c.name in got, [n["reason"] for n in res.not_found]
-        err = pose_error_6dof(np.asarray(got[c.name]["T_table_obj"]), np.asarray(strap[c.name]["T_table_object"]),
-                              c.prepare())
-        assert np.linalg.norm(err[:3]) < 0.3 and np.nanmax(np.abs(err[3:])) < 0.1, (c.name, err)
-        assert _within_3_sigma(got[c.name], err), (c.name, err, got[c.name]["sigma"])
-        assert got[c.name]["chain"] == ["table"]
-    err = pose_error_6dof(np.asarray(got[wp.name]["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"]),
-                          wp.prepare())
-    assert np.linalg.norm(err[:3]) < 0.3, err
+    return res, {c.name: c for c in clamps}, strap
+
+
+def _clamp_error(res, clamp, truth):
+    got = next(o for o in res.objects if o["name"] == clamp.name)
+    err = pose_error_6dof(np.asarray(got["T_table_obj"]), np.asarray(truth["T_table_object"]), clamp.prepare())
+    return got, err
+
+
+def test_a_strap_clamp_stands_on_its_heel_block():
+    """setup_003: a part under a strap clamp set whose stud reaches 16 mm down into the T-slot. Standing
+    on its lowest point (the stud's end) every devset set was searched 16 mm too high (setup_013: one
+    ambiguous, one 27 mm off). Standing on its heel block it is located."""
+    res, clamps, truth = _with_strap_clamps("setup_003")
+    got, err = _clamp_error(res, clamps["strap_clamp_0"], truth["strap_clamp_0"])
+    assert np.linalg.norm(err[:3]) < 0.3 and np.nanmax(np.abs(err[3:])) < 0.1, err
+    assert _within_3_sigma(got, err), (err, got["sigma"])
+    assert got["chain"] == ["table"]
+
+
+def test_a_clamp_that_another_clamp_fits_as_well_is_refused():
+    """setup_000: two strap clamp sets that differ in their straps' length. The longer one was located at
+    the shorter one's place (151 mm from its own), and passed by its sigma; the shorter then took the
+    longer one's place. Started there, the shorter set fits it clearly better (65 % against 50 %): the
+    longer one is refused as ambiguous and the shorter one is found at its own place."""
+    res, clamps, truth = _with_strap_clamps("setup_000")
+    (refused,) = [n for n in res.not_found if n["name"] == "strap_clamp_1"]
+    assert refused["kind"] == "ambiguous" and "strap_clamp_0 fits its place as well" in refused["reason"]
+    got, err = _clamp_error(res, clamps["strap_clamp_0"], truth["strap_clamp_0"])
+    assert np.linalg.norm(err[:3]) < 0.3 and np.nanmax(np.abs(err[3:])) < 0.1, err
 
 
 def test_small_part_on_the_table_is_located():
