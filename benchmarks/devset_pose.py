@@ -90,7 +90,8 @@ def run_scene(entry: dict, method: str) -> dict:
     # clamped: the shop keeps its strap clamp sets in the library too (the scene's own, as it keeps its vise)
     clamps = {o["name"]: o for o in getattr(sc, "gt", {}).get("objects", [])
               if o["kind"] == "clamp" and o.get("subtype") == "strap_clamp"} if method == "clamped" else {}
-    cands += [Candidate(n, trimesh.load(DEVSET / o["mesh"], force="mesh"), kind="clamp") for n, o in clamps.items()]
+    cands += [Candidate(n, o["mesh_obj"] if "mesh_obj" in o else trimesh.load(DEVSET / o["mesh"], force="mesh"),
+                        kind="clamp") for n, o in clamps.items()]
     kw = {"height_offsets_mm": (0.0,)} if method == "baseline" else {"chain": True}
     if method in ("engine", "clamped") and entry.get("source") != "synth" and RISERS:
         kw["riser_heights_mm"] = shop_riser_heights(DEVSET)
@@ -348,7 +349,8 @@ def main(argv=None) -> int:
             old = {r["scene"]: r for r in (json.loads((out / f"{m}.json").read_text()) if (out / f"{m}.json").exists() else [])}
             old.update({r["scene"]: r for r in rows})
             (out / f"{m}.json").write_text(json.dumps(sorted(old.values(), key=lambda r: r["scene"]), indent=1))
-    for m in ("baseline", "engine", "clamped", "baseline_synth", "engine_synth", "baseline_moved", "engine_moved"):
+    for m in ("baseline", "engine", "clamped", "baseline_synth", "engine_synth", "clamped_synth", "baseline_moved",
+              "engine_moved"):
         if (out / f"{m}.json").exists():
             results[m] = json.loads((out / f"{m}.json").read_text())
     print(report(results))

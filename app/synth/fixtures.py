@@ -78,6 +78,48 @@ def in_vise(rng, name: str, mesh: trimesh.Trimesh, vise: trimesh.Trimesh, vise_n
     return objs
 
 
+def under_strap_clamps(rng, part: SceneObject, max_clamps: int = 2) -> list[SceneObject]:
+    """Strap clamp sets pressing ``part`` (lying on the table) onto the table from opposite sides: each
+    set built for its place (``parts.strap_clamp``: 125 or 175 mm, its strap's nose 3 mm below the
+    underside resting on the part's top 8 mm in from an edge), its heel block on the table outside
+    the part. A side whose strap would cross a higher face of the part (a bracket's flange) gets no
+    clamp. Returns the sets, at most ``max_clamps``."""
+    from app.geometry import parts
+
+    mesh, T = part.mesh, part.T_table_obj
+    R = T[:3, :3]
+    b = mesh.bounds
+    c = transform_points(T, ((b[0] + b[1]) / 2)[None])[0]
+    out: list[SceneObject] = []
+    sides = [(R[:, 0], 0.5 * (b[1, 0] - b[0, 0])), (R[:, 1], 0.5 * (b[1, 1] - b[0, 1]))]
+    k0 = int(rng.integers(0, 2))
+    for a, half in (sides[k0], sides[1 - k0]):
+        for sign in (1.0, -1.0):
+            if len(out) >= max_clamps:
+                return out
+            d = sign * np.array([a[0], a[1], 0.0]) / max(np.hypot(a[0], a[1]), 1e-9)
+            # the part's top along the strap's path, from 8 mm in from the edge outwards
+            path = [c + d * (half - t) for t in (8.0, 6.0, 3.0, 1.0)]
+            tops = []
+            for q in path:
+                hit, _, _ = mesh.ray.intersects_location(transform_points(np.linalg.inv(T), [q + [0, 0, 1e3]]),
+                                                         [np.linalg.inv(T)[:3, :3] @ [0, 0, -1.0]])
+                tops.append(float(transform_points(T, hit)[:, 2].max()) if len(hit) else -1.0)
+            if tops[0] <= 0.0 or max(tops) > tops[0] + 0.5:
+                continue
+            length = float(rng.choice([125.0, 175.0]))
+            clamp = parts.strap_clamp(length_mm=length, clamp_height_mm=tops[0] + 3.0,
+                                      width_mm=25.0 if length < 150 else 32.0,
+                                      thickness_mm=16.0 if length < 150 else 20.0)
+            x_nose = 0.55 * length
+            o = path[0] + d * (x_nose - 6.0)          # the stud; its +x (towards the nose) is -d
+            yaw = float(np.degrees(np.arctan2(-d[1], -d[0])))
+            out.append(SceneObject(f"strap_clamp#{len(out)}", clamp, pose_from_xyz_euler(o[0], o[1], 0.0, c_deg=yaw),
+                                   albedo=float(rng.uniform(0.2, 0.35))))
+            break
+    return out
+
+
 # --------------------------------------------------------------------------------------------------
 # whole scenes for the benchmarks: the same shape as the devset's (app.synth.devset.DevsetScene)
 # --------------------------------------------------------------------------------------------------
@@ -87,6 +129,9 @@ WORKPIECES = ("pin_block_32", "flange_plate_80", "bracket_140", "base_plate_300"
 
 # Scenes from this index on add shop conditions (shop_conditions); the ones before keep theirs.
 SHOP_FROM = 24
+# Scenes from this index on are parts on the table under strap clamp sets (under_strap_clamps), with
+# the shop conditions; the ones before keep theirs.
+CLAMPS_FROM = 36
 
 
 def shop_conditions(k: int, objs: list[SceneObject]) -> dict:
@@ -115,6 +160,9 @@ def shop_conditions(k: int, objs: list[SceneObject]) -> dict:
 def synth_entry(k: int) -> dict:
     """Scene k of the generated set: the fixture mode cycles table / vise / parallels, the workpiece
     cycles through the example library's four."""
+    if k >= CLAMPS_FROM:                # on the table under strap clamps
+        return {"source": "synth", "index": k, "scene_id": f"synth_{k:03d}", "fixture_mode": "table",
+                "workpiece": WORKPIECES[k % len(WORKPIECES)], "clamps": True}
     return {"source": "synth", "index": k, "scene_id": f"synth_{k:03d}", "fixture_mode": MODES[k % 3],
             "workpiece": WORKPIECES[(k // 3) % len(WORKPIECES)]}
 
@@ -146,6 +194,8 @@ def synth_scene(entry: dict, width: int = 1920, height: int = 1200):
         objs = on_parallels(rng, wp.key, wp.mesh, par.mesh, par.key, x, y)
     if mode == "table":
         objs = on_table(rng, wp.key, wp.mesh, x, y)
+    if entry.get("clamps"):
+        objs = objs + under_strap_clamps(np.random.default_rng(11000 + k), objs[0])
     target = objs[0].T_table_obj[:3, 3] * [1, 1, 0]
     table, layout = parts.tslot_table(), parts.tslot_table_layout()
     # scenes from SHOP_FROM on add what a shop shows besides (own generator, so scenes 0.. keep theirs)
@@ -179,7 +229,9 @@ def synth_scene(entry: dict, width: int = 1920, height: int = 1200):
     V = transform_points(T_cam_table @ objs[0].T_table_obj, wp.mesh.vertices)
     sil = int(np.isfinite(render_depth([(V, wp.mesh.faces)], K, width, height, max_pixel_tests=50_000_000)[0]).sum())
     vis_frac = float(min(1.0, np.count_nonzero(r.labels == 2) / max(sil, 1)))
-    gt = {"visible_marker_ids": seen, "fixture_mode": mode}
+    gt = {"visible_marker_ids": seen, "fixture_mode": mode,
+          "objects": [{"name": o.name.replace("#", "_"), "kind": "clamp", "subtype": "strap_clamp", "mesh_obj": o.mesh,
+                       "T_table_object": o.T_table_obj.tolist()} for o in objs if o.name.startswith("strap_clamp")]}
     wpd = {"name": wp.key, "mesh_obj": wp.mesh, "T_table_object": objs[0].T_table_obj.tolist(),
            "visible_fraction": vis_frac}
     fixtures = [Candidate(m.key, m.mesh, kind=m.kind, support_surfaces=m.support_surfaces)

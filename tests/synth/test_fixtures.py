@@ -9,7 +9,15 @@ import trimesh
 
 from app.geometry import parts
 from app.geometry.transforms import transform_points
-from app.synth.fixtures import SHOP_FROM, in_vise, on_parallels, shop_conditions, synth_entry
+from app.synth.fixtures import (
+    CLAMPS_FROM,
+    SHOP_FROM,
+    in_vise,
+    on_parallels,
+    shop_conditions,
+    synth_entry,
+    under_strap_clamps,
+)
 from app.synth.scene import SceneObject, place_on_table
 
 
@@ -83,3 +91,28 @@ def test_shop_scenes_add_a_spindle_dark_parts_and_vignetting_and_leave_the_older
     assert even["objects"][0].albedo < 0.3 and even["table_albedo"] < 0.3     # dark part, dark table
     assert odd["objects"][0].albedo == 0.6 and odd["table_albedo"] == 0.42
     assert objs[0].albedo == 0.6                      # the caller's objects are not changed
+
+
+@pytest.mark.parametrize("key", ["flange_plate_80", "base_plate_300", "bracket_140"])
+def test_strap_clamps_press_the_part_from_their_heel_blocks_on_the_table(lib, key):
+    """Each set's nose rests on the part's top (within 0.01 mm), its heel block stands on the table, and
+    neither passes through the part; a bracket's flange is not crossed."""
+    wp = lib[key]
+    part = SceneObject(wp.key, wp.mesh, place_on_table(wp.mesh, 400.0, 200.0, 30.0), albedo=0.6)
+    clamps = under_strap_clamps(np.random.default_rng(4), part)
+    assert 1 <= len(clamps) <= 2
+    for c in clamps:
+        assert _zrange(c)[0] == pytest.approx(0.0, abs=1e-6)          # on the table (its stud from z = 0)
+        assert _overlap_volume(c, part) < 1.0
+        # the set touches the part: moved 0.5 mm down, it passes into it
+        T = c.T_table_obj.copy()
+        T[2, 3] -= 0.5
+        lowered = SceneObject(c.name, c.mesh, T, albedo=c.albedo)
+        assert _overlap_volume(lowered, part) > 1.0
+
+
+def test_clamp_scenes_follow_the_older_ones():
+    assert not any(synth_entry(k).get("clamps") for k in range(CLAMPS_FROM))
+    assert all(synth_entry(k)["clamps"] and synth_entry(k)["fixture_mode"] == "table"
+               for k in range(CLAMPS_FROM, CLAMPS_FROM + 8))
+    assert len({synth_entry(k)["workpiece"] for k in range(CLAMPS_FROM, CLAMPS_FROM + 8)}) == 4
