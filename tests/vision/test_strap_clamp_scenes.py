@@ -1,0 +1,55 @@
+"""A plate under two strap clamp sets in a scene of our generator (app.synth.fixtures, scene 47: a shop
+scene, low lamp, spindle in view), located as the service locates a setup's named models."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.synth.fixtures import synth_entry, synth_scene
+from app.vision.localize import Candidate, localize
+from app.vision.pose_errors import pose_error_6dof
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def scene():
+    sc, image = synth_scene(synth_entry(47))
+    wp = Candidate(sc.workpiece["name"], sc.workpiece["mesh_obj"], kind="workpiece")
+    clamps = [Candidate(o["name"], o["mesh_obj"], kind="clamp") for o in sc.gt["objects"]]
+    return sc, image, wp, clamps
+
+
+def _workpiece(res, name):
+    return next((o for o in res.objects if o["name"] == name), None)
+
+
+def test_without_its_clamps_the_plate_is_not_taken_for_a_plate_on_its_side(scene):
+    """The clamps hide half the plate and put their own edges inside its outline: its true pose fits
+    50 % of 1850 px of edges, while the plate on its side 301 mm away fits 61 % of 1420 px, leaving
+    more of the image unexplained. That reading was returned with a 0.04-0.08 mm sigma in x and y
+    (refused only by its 0.28 mm in z); now the part is refused as ambiguous."""
+    sc, image, wp, _ = scene
+    res = localize(image, sc.K, sc.dist, sc.layout, [wp] + sc.fixture_candidates, table_model=sc.table_candidate,
+                   chain=True)
+    assert _workpiece(res, wp.name) is None
+    (why,) = [n for n in res.not_found if n["name"] == wp.name]
+    assert why["kind"] == "ambiguous" and "explains" in why["reason"], why
+
+
+def test_with_its_clamps_in_the_library_the_plate_and_the_clamps_are_located(scene):
+    sc, image, wp, clamps = scene
+    res = localize(image, sc.K, sc.dist, sc.layout, [wp] + sc.fixture_candidates + clamps,
+                   table_model=sc.table_candidate, chain=True)
+    obj = _workpiece(res, wp.name)
+    assert obj is not None, [n["reason"] for n in res.not_found]
+    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"]), wp.prepare())
+    assert np.linalg.norm(err[:3]) < 0.1 and np.nanmax(np.abs(err[3:])) < 0.1, err
+    truth = {o["name"]: o for o in sc.gt["objects"]}
+    located = [c for c in clamps if _workpiece(res, c.name) is not None]
+    assert located, [n["reason"] for n in res.not_found]
+    for c in located:
+        e = pose_error_6dof(np.asarray(_workpiece(res, c.name)["T_table_obj"]),
+                            np.asarray(truth[c.name]["T_table_object"]), c.prepare())
+        assert np.linalg.norm(e[:3]) < 0.3 and np.nanmax(np.abs(e[3:])) < 0.1, (c.name, e)
