@@ -34,10 +34,11 @@ def sim():
         pytest.fail(f"LinuxCNC sim did not start: {exc}")
 
 CLEARANCE = 5.0
-# probe feed 300 mm/min (5 mm/s): the simulated probe is a userspace component polled every 0.5 ms, and
-# on a loaded machine it trips a few ms late; at 1200 mm/min one touch in a suite run under xdist came
-# 0.08 mm long (the other worker on the second core), at 300 mm/min such a delay costs 0.02 mm
-PARAMS = ProbingParams(ball_radius_mm=1.5, stylus_length_mm=30.0, probe_feed_mm_min=300.0, approach_mm=5.0)
+# probe feed 100 mm/min (the product's default): the simulated probe is a userspace component polled
+# every 0.5 ms, and on a loaded machine it trips late; at 1200 mm/min one touch in a suite run under
+# xdist came 0.08 mm long, and at 300 mm/min one did again (16 ms late: 0.0825 mm, 2026-11-29); at
+# 100 mm/min such a delay costs 0.03 mm
+PARAMS = ProbingParams(ball_radius_mm=1.5, stylus_length_mm=30.0, probe_feed_mm_min=100.0, approach_mm=5.0)
 TRAVEL = ProbeParams(working_distance_mm=0.0, clearance_mm=CLEARANCE, radius_mm=15.0, length_mm=80.0)
 START = (100.0, 200.0, 95.0)
 
