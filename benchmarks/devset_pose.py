@@ -145,6 +145,7 @@ def run_scene(entry: dict, method: str) -> dict:
         errs = [pose_error_6dof(T, np.asarray(wp["T_table_object"]), prepared) for T in listed]
         e = min(errs, key=lambda e: np.linalg.norm(e[:3]) + 10 * np.linalg.norm(np.nan_to_num(e[3:])))
         row.update(err=[float(v) for v in e], sigma=obj["sigma"], score=obj["score"], chain=obj.get("chain"),
+                   unexplained=obj.get("unexplained_fraction"),
                    held_by=obj.get("held_by"),
                    T_table_obj=obj["T_table_obj"], equivalent_poses=obj.get("equivalent_poses", []),
                    cov6=obj.get("cov6"), pass_=obj.get("uncertainty_ok"))

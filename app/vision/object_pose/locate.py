@@ -216,11 +216,10 @@ class LocateContext:
         return float(transform_points(T, self.model.support_vertices)[:, 2].min())
 
     def under_table(self, T: np.ndarray) -> bool:
-        """Pose ``T`` reaches below the table top (z = 0) by more than a freely fitted height is
-        taken to rest on a surface it ends under (:data:`UNDER_TABLE_MM`): no part can be there.
-        A free height slides along the line of sight; it can end there on the edges of whatever
-        lies beyond (devset setup_007: the angle block 62 mm under the table, 226 mm off, outscored
-        its true pose, 67 % of its edges against 61 %)."""
+        """Whether pose ``T``'s lowest point lies more than :data:`UNDER_TABLE_MM` under the table top
+        (z = 0), where no part can be. A free height slides along the line of sight and can end there
+        on the edges of whatever lies beyond (devset setup_007: the angle block 62 mm under the table,
+        226 mm off, outscored its true pose, 67 % of its edges against 61 %)."""
         return self.lowest_z(T) < -UNDER_TABLE_MM
 
     def on_known_surface(self, T: np.ndarray) -> bool:
