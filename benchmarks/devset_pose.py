@@ -128,8 +128,8 @@ def run_scene(entry: dict, method: str) -> dict:
             model = cand.prepare()
             # two sets whose meshes' boxes agree within 2.5 mm (straps 1-2 mm apart) are interchangeable:
             # the error is to the nearer of them (localize.LOOKALIKE_SAME_MM)
-            same = [q for q, k in ((clamps[k.name], k) for k in cands if k.name in clamps)
-                    if np.abs(k.mesh.bounds - cand.mesh.bounds).max() <= 2.5]
+            same = [clamps[k.name] for k in cands
+                    if k.name in clamps and np.abs(k.mesh.bounds - cand.mesh.bounds).max() <= 2.5]
             errs = [pose_error_6dof(np.asarray(got["T_table_obj"]), np.asarray(q["T_table_object"]), model)
                     for q in same]
             e = min(errs, key=lambda e: np.linalg.norm(e[:3]) + 10 * np.linalg.norm(np.nan_to_num(e[3:])))

@@ -14,7 +14,7 @@ import dataclasses
 import numpy as np
 import trimesh
 
-from app.geometry.transforms import make_pose, pose_from_xyz_euler, transform_points
+from app.geometry.transforms import inv, make_pose, pose_from_xyz_euler, transform_points
 from app.synth.scene import SceneObject, place_on_table
 
 MODES = ("table", "vise", "parallels")
@@ -87,6 +87,7 @@ def under_strap_clamps(rng, part: SceneObject, max_clamps: int = 2) -> list[Scen
     from app.geometry import parts
 
     mesh, T = part.mesh, part.T_table_obj
+    T_obj_table = inv(T)
     R = T[:3, :3]
     b = mesh.bounds
     c = transform_points(T, ((b[0] + b[1]) / 2)[None])[0]
@@ -98,13 +99,12 @@ def under_strap_clamps(rng, part: SceneObject, max_clamps: int = 2) -> list[Scen
             if len(out) >= max_clamps:
                 return out
             d = sign * np.array([a[0], a[1], 0.0]) / max(np.hypot(a[0], a[1]), 1e-9)
-            # the part's top along the strap's path, from 8 mm in from the edge outwards
-            path = [c + d * (half - t) for t in (8.0, 6.0, 3.0, 1.0)]
-            tops = []
-            for q in path:
-                hit, _, _ = mesh.ray.intersects_location(transform_points(np.linalg.inv(T), [q + [0, 0, 1e3]]),
-                                                         [np.linalg.inv(T)[:3, :3] @ [0, 0, -1.0]])
-                tops.append(float(transform_points(T, hit)[:, 2].max()) if len(hit) else -1.0)
+            # the part's top along the strap's path, from 8 mm in from the edge outwards (rays cast down)
+            path = np.array([c + d * (half - t) for t in (8.0, 6.0, 3.0, 1.0)])
+            hit, ray, _ = mesh.ray.intersects_location(transform_points(T_obj_table, path + [0.0, 0.0, 1e3]),
+                                                       np.tile(T_obj_table[:3, :3] @ [0.0, 0.0, -1.0], (len(path), 1)))
+            z_hit = transform_points(T, hit)[:, 2] if len(hit) else np.zeros(0)
+            tops = [float(z_hit[ray == i].max()) if np.any(ray == i) else -1.0 for i in range(len(path))]
             if tops[0] <= 0.0 or max(tops) > tops[0] + 0.5:
                 continue
             length = float(rng.choice([125.0, 175.0]))

@@ -467,7 +467,8 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
                 pose = _kept_on_guide(cand, pose, guide, carrier_pose.T_table_obj)
             if pose and fixture and guide is None:
                 pose = _unlike_the_others(cand, pose, [c for c in ordered if c is not cand], image, K, dist,
-                                          T_cam_table, occ, kn, labels, table_xy, table_cov, min_margin)
+                                          T_cam_table, occ, kn, labels, table_xy, table_cov, min_margin,
+                                          edge_image=None if edges is None else edges())
         chain_text = ""
         if pose and fixture:
             carrier = _carrier(seats, pose, cand)
@@ -512,7 +513,7 @@ def _same_shape(a: trimesh.Trimesh, b: trimesh.Trimesh) -> bool:
 
 
 def _unlike_the_others(cand: Candidate, pose, others: list[Candidate], image, K, dist, T_cam_table, occ, kn,
-                       labels, table_xy, table_cov, min_margin: float):
+                       labels, table_xy, table_cov, min_margin: float, edge_image=None):
     """``pose`` unless another fixture of the same kind and another shape, started where ``cand`` was
     found (its centre of mass there, turned as ``cand`` or half a turn), fits that place about as well
     (within ``min_margin``): then which of the two stands there is not told by the image, and the pose
@@ -530,14 +531,14 @@ def _unlike_the_others(cand: Candidate, pose, others: list[Candidate], image, K,
             continue
         om = other.prepare()
         starts = []
-        for turn in (0.0, np.pi):
-            R = T[:3, :3] @ np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1.0]])
+        for half_turn in (np.eye(3), np.diag([-1.0, -1.0, 1.0])):         # about its own z
+            R = T[:3, :3] @ half_turn
             T0 = make_pose(R, c - R @ om.center_obj)
             T0[2, 3] += z_low - float(transform_points(T0, om.support_vertices)[:, 2].min())   # on the same face
             starts.append(T0)
         alt = object_pose.locate_object(
             image, K, dist, T_cam_table, om, occluder_models=occ, known_models=kn, known_regions=labels,
-            table_extent_xy=table_xy, table_covariance=table_cov, start_poses=starts,
+            edge_image=edge_image, table_extent_xy=table_xy, table_covariance=table_cov, start_poses=starts,
             min_score=FIXTURE_MIN_SCORE, min_margin=min_margin, free_height=False, **FIXTURE_OPTIONS)
         if not alt:
             continue
