@@ -119,6 +119,9 @@ def run_scene(entry: dict, method: str) -> dict:
     wp_fail = [] if res is None else [n["reason"] for n in res.not_found if n.get("name") == wp["name"]]
     row["reason"] = "" if obj is not None else (err or (wp_fail[0] if wp_fail else res.reason))
     row["fixtures"] = [] if res is None else [o["name"] for o in res.objects if o["kind"] != "workpiece"]
+    # each located fixture's unexplained-edge share (a vise's outline holds the part it clamps)
+    row["fixtures_unexplained"] = {} if res is None else {o["name"]: o.get("unexplained_fraction")
+                                                          for o in res.objects if o["kind"] != "workpiece"}
     row["clamps"] = []
     for name, o in clamps.items():
         got = None if res is None else next((x for x in res.objects if x["name"] == name), None)

@@ -628,6 +628,14 @@ def _refusal(ctx: LocateContext, best: Fit, rv: Rivals) -> tuple[tuple[str, str]
                              f"the image unexplained than another pose that fits {r.score:.0%} of its edges but "
                              f"explains {r.support_px / max(best.support_px, 1e-9):.1f} times the edge length; "
                              f"take another view or give the pose roughly"), drop
+    # a part hides what lies behind it: edges inside its outline that it does not explain are not
+    # behind it (our generator's synth_042: a bracket read on clutter, 86 % unexplained)
+    u = ctx.unexplained(best.T)
+    if u > o.max_unexplained:
+        return ("not_found", f"{name} not found: the best fit ({best.score:.0%} of its visible edges) leaves "
+                             f"{u:.0%} of the image edges inside its outline unexplained (at most "
+                             f"{o.max_unexplained:.0%}); a part would hide what made them, so it is not there; "
+                             f"it may be hidden by something that is not in the library"), drop
     if rv.rivals and rv.rival_margin < o.min_margin:
         return ("ambiguous", f"{name} ambiguous: two different poses fit almost equally well "
                              f"({best.score:.0%} and {best.score - rv.rival_margin:.0%} of the visible edges, margin "

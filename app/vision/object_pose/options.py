@@ -28,6 +28,8 @@ class LocateOptions:
     min_margin : least score difference to the best different pose
     min_distinctiveness : least drop of the score when the fitted pose is moved by 4 px along x, y or
         turned as much (fits onto a single straight edge or onto texture do not drop and are refused)
+    max_unexplained : largest share of the image's edge pixels inside the fitted outline that the
+        model may leave unexplained (a part hides what lies behind it); 1.0 turns the test off
     max_tilt_deg : residual tilt above which (and above 3 sigma) the result carries the "tilt" flag
     max_sigma_mm, max_sigma_deg : tolerances on the 1-sigma uncertainty (``uncertainty_ok``)
     n_starts : search peaks per resting state and height; ``n_planar`` : best of those aligned in the
@@ -55,6 +57,7 @@ class LocateOptions:
     min_score: float = 0.5
     min_margin: float = 0.1
     min_distinctiveness: float = 0.1
+    max_unexplained: float = 0.7
     max_tilt_deg: float = 0.5
     max_sigma_mm: float = 0.2
     max_sigma_deg: float = 0.1
