@@ -68,6 +68,33 @@ def scenes(family: str = "setup") -> list[dict]:
     return man["families"][family]
 
 
+# --perturb: the image degraded before the engine sees it (a stress test of the refusals and the sigma
+# on pictures rougher than the devset's; deterministic per scene)
+PERTURB = ""
+PERTURBATIONS = ("jpeg60", "blur", "noise", "dark", "blur_noise", "dark_noise")
+
+
+def perturbed(image, kind: str, seed: int):
+    """``image`` degraded as a shop camera might: ``jpeg60`` re-encoded at JPEG quality 60; ``blur``
+    defocused (Gaussian, sigma 1.2 px); ``noise`` read noise (sigma 4 grey levels); ``dark``
+    under-exposed to 45 % (fewer grey levels per edge); ``blur_noise`` and ``dark_noise`` both."""
+    import cv2
+
+    if kind == "jpeg60":
+        _, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 60])
+        return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if kind not in PERTURBATIONS:
+        raise ValueError(f"unknown perturbation {kind!r}; known: {', '.join(PERTURBATIONS)}")
+    img = image.astype(np.float32)
+    if kind.startswith("blur"):
+        img = cv2.GaussianBlur(img, (0, 0), 1.2)
+    if kind.startswith("dark"):
+        img = img * 0.45
+    if kind.endswith("noise"):
+        img = img + np.random.default_rng(seed).normal(0.0, 4.0, img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
 def run_scene(entry: dict, method: str) -> dict:
     """One scene through one method -> a row (errors, sigma, time, reason)."""
     import cv2
@@ -82,6 +109,8 @@ def run_scene(entry: dict, method: str) -> dict:
     else:
         sc = devset_scene(DEVSET, entry)
         image = cv2.imread(str(DEVSET / entry["image"]), cv2.IMREAD_UNCHANGED)
+    if PERTURB:
+        image = perturbed(image, PERTURB, seed=int(entry.get("index", 0)))
     wp = sc.workpiece
     mesh = wp["mesh_obj"] if "mesh_obj" in wp else trimesh.load(DEVSET / wp["mesh"], force="mesh")
     cands = [Candidate(wp["name"], mesh, kind="workpiece")]
@@ -320,7 +349,12 @@ def main(argv=None) -> int:
                     help="moved: the devset's two-view pairs (reports their agreement); synth: our own "
                          "generator's table / vise / parallels scenes (app.synth.fixtures)")
     ap.add_argument("--n-synth", type=int, default=24)
+    ap.add_argument("--perturb", default="", choices=("",) + PERTURBATIONS,
+                    help="degrade each image first (a stress test; see perturbed())")
     a = ap.parse_args(argv)
+    if a.perturb:
+        global PERTURB
+        PERTURB = a.perturb      # read by the workers, which fork after this
     if a.no_risers:
         global RISERS
         RISERS = False           # read by the workers, which fork after this
