@@ -47,6 +47,17 @@ DEVSET = Path(os.environ.get("SETUPCAM_DEVSET", Path(__file__).resolve().parents
 WRONG_MM, WRONG_DEG = 1.0, 0.5
 
 
+def _is_wrong(err) -> bool:
+    """A located result more than :data:`WRONG_MM` or :data:`WRONG_DEG` off (err: x, y, z mm, rx, ry, rz deg)."""
+    return bool(np.linalg.norm(err[:3]) > WRONG_MM or np.nanmax(np.abs(err[3:])) > WRONG_DEG)
+
+
+def _nearest(errs: list):
+    """Of the 6-DoF errors to equivalent truths (a part's symmetric poses, interchangeable clamp sets),
+    the smallest (1 deg counts as 0.1 mm)."""
+    return min(errs, key=lambda e: np.linalg.norm(e[:3]) + 10 * np.linalg.norm(np.nan_to_num(e[3:])))
+
+
 # the devset shop's parallels (every parallel_*.stl of its meshes, their heights) are declared as its
 # risers; --no-risers leaves every riser of unknown height
 RISERS = True
@@ -101,7 +112,7 @@ def run_scene(entry: dict, method: str) -> dict:
     import trimesh
 
     from app.synth.devset import devset_scene
-    from app.vision.localize import Candidate, localize
+    from app.vision.localize import LOOKALIKE_SAME_MM, Candidate, localize
     from app.vision.pose_errors import pose_error_6dof
 
     if entry.get("source") == "synth":
@@ -158,13 +169,13 @@ def run_scene(entry: dict, method: str) -> dict:
         if got is not None:
             cand = next(k for k in cands if k.name == name)
             model = cand.prepare()
-            # two sets whose meshes' boxes agree within 2.5 mm (straps 1-2 mm apart) are interchangeable:
-            # the error is to the nearer of them (localize.LOOKALIKE_SAME_MM)
+            # two sets whose meshes' boxes agree within LOOKALIKE_SAME_MM (straps 1-2 mm apart) are
+            # interchangeable: the error is to the nearer of them
             same = [clamps[k.name] for k in cands
-                    if k.name in clamps and np.abs(k.mesh.bounds - cand.mesh.bounds).max() <= 2.5]
+                    if k.name in clamps and np.abs(k.mesh.bounds - cand.mesh.bounds).max() <= LOOKALIKE_SAME_MM]
             errs = [pose_error_6dof(np.asarray(got["T_table_obj"]), np.asarray(q["T_table_object"]), model)
                     for q in same]
-            e = min(errs, key=lambda e: np.linalg.norm(e[:3]) + 10 * np.linalg.norm(np.nan_to_num(e[3:])))
+            e = _nearest(errs)
             c.update(err=[float(v) for v in e],
                      sigma=got["sigma"], pass_=got.get("uncertainty_ok"), score=got.get("score"))
         else:
@@ -175,7 +186,7 @@ def run_scene(entry: dict, method: str) -> dict:
         prepared = next(c for c in cands if c.kind == "workpiece").prepare()
         listed = [np.asarray(obj["T_table_obj"])] + [np.asarray(T) for T in obj.get("equivalent_poses", [])]
         errs = [pose_error_6dof(T, np.asarray(wp["T_table_object"]), prepared) for T in listed]
-        e = min(errs, key=lambda e: np.linalg.norm(e[:3]) + 10 * np.linalg.norm(np.nan_to_num(e[3:])))
+        e = _nearest(errs)
         row.update(err=[float(v) for v in e], sigma=obj["sigma"], score=obj["score"], chain=obj.get("chain"),
                    unexplained=obj.get("unexplained_fraction"),
                    held_by=obj.get("held_by"),
@@ -206,8 +217,7 @@ def _summary(rows: list[dict]) -> dict:
     n = len(rows)
     elig = [r for r in rows if r["markers_seen"] >= 2 and r["visible_fraction"] >= 0.5]
     loc = [r for r in rows if r["located"]]
-    wrong = [r for r in loc if np.linalg.norm(r["err"][:3]) > WRONG_MM or
-             np.nanmax(np.abs(r["err"][3:])) > WRONG_DEG]
+    wrong = [r for r in loc if _is_wrong(r["err"])]
     wrong_pass = [r for r in wrong if r.get("pass_")]        # wrong and the gate would have let it through
     good = [r for r in loc if r not in wrong]
     pos = np.array([np.linalg.norm(r["err"][:3]) for r in good])
@@ -322,8 +332,7 @@ def clamp_report(rows: list[dict]) -> str:
     for half, label in ((0, "000-019"), (1, "020-039"), (None, "both")):
         cl = [c for r in rows if half is None or r["half"] == half for c in r.get("clamps", [])]
         loc = [c for c in cl if c["located"]]
-        bad = [c for c in loc
-               if np.linalg.norm(c["err"][:3]) > WRONG_MM or np.nanmax(np.abs(c["err"][3:])) > WRONG_DEG]
+        bad = [c for c in loc if _is_wrong(c["err"])]
         good = [np.linalg.norm(c["err"][:3]) for c in loc if all(c is not b for b in bad)]
         passed = sum(bool(c.get("pass_")) for c in bad)
         lines.append(f"| {label} | {len(cl)} | {len(loc)} | {len(good)} | {len(bad)} / {passed} | "

@@ -136,14 +136,19 @@ class PreparedModel:
         """(F, 3) unit face normals, obj frame: denoised for a scan, else the mesh's own."""
         return self.mesh.face_normals if self.denoised_normals is None else self.denoised_normals
 
+    @property
+    def stands_as_modelled(self) -> bool:
+        """Whether the only stance is the CAD one, z up (:func:`prepare_model`'s ``upright_only``: a
+        fixture, which never lies upside down or on its side)."""
+        return len(self.resting_states) == 1 and self.resting_states[0].cad_axis == "+z"
+
     @cached_property
     def support_vertices(self) -> np.ndarray:
         """(V, 3) the vertices that can rest on a surface, obj frame, mm: all of them, except for a
-        fixture standing as modelled (:func:`prepare_model`'s ``upright_only``) whose mesh reaches
-        below its standing face, such as a strap clamp's stud down into the T-slot: those at or
-        above that face."""
+        fixture standing as modelled (:attr:`stands_as_modelled`) whose mesh reaches below its
+        standing face, such as a strap clamp's stud down into the T-slot: those at or above that face."""
         V = np.asarray(self.mesh.vertices, dtype=float)
-        if len(self.resting_states) != 1 or self.resting_states[0].cad_axis != "+z":
+        if not self.stands_as_modelled:
             return V
         z = transform_points(self.resting_states[0].T_rest_obj, V)[:, 2]
         return V[z >= -STANDING_TOL_MM]

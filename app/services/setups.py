@@ -31,7 +31,7 @@ from app.store.models import Capture, Job, LibraryModel, Setup, utcnow
 from app.vision import object_pose
 from app.vision.fiducials import locate_table
 from app.vision.image_header import ImageHeaderError, image_size
-from app.vision.localize import (NOT_A_PART, Candidate, draw_pose_overlay, localize, marker_labels_table,
+from app.vision.localize import (Candidate, draw_pose_overlay, kind_options, localize, marker_labels_table,
                                  object_entry)
 from app.vision.photo_model import PhotoModel, View, known_edge_mask, locate_near
 
@@ -579,7 +579,7 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
                                          table_covariance=(tp.covariance, tp.centroid_table_mm) if tp else None,
                                          known_models=((table.prepare(), np.eye(4)),),
                                          known_regions=marker_labels_table(layout or {}),
-                                         **({} if cand.kind == "workpiece" else NOT_A_PART))
+                                         **kind_options(cand.kind))
     if not pose:
         raise Invalid(f"refinement from this pose failed: {pose.reason}; nudge the part closer to where "
                       "it is in the picture and try again")

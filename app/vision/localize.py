@@ -29,6 +29,7 @@ from app.geometry.guides import (
     guide_start_poses,
 )
 from app.geometry.model_edges import PreparedModel, prepare_model
+from app.geometry.transforms import make_pose, transform_points
 from app.geometry.support_surfaces import CARRYING_KINDS
 from app.vision import object_pose
 from app.vision.blas_threads import one_blas_thread
@@ -52,6 +53,12 @@ FIXTURE_MIN_SCORE = 0.35
 NOT_A_PART = {"max_unexplained": 1.0}
 FIXTURE_OPTIONS = {"contact_sigma_mm": 0.05, "contact_sigma_deg": 0.05, "free_contact_sigma_deg": 0.05,
                    "settle_starts": True, "n_coarse": 120, "coarse_step_max_mm": 8.0, "n_starts": 10, **NOT_A_PART}
+
+
+def kind_options(kind: str) -> dict:
+    """Locate options that follow from a library model's kind (:data:`NOT_A_PART` for all but a
+    workpiece); the support chain's fixtures get :data:`FIXTURE_OPTIONS`, which include them."""
+    return {} if kind == "workpiece" else NOT_A_PART
 
 # BGR colours per object, in order (workpiece first): distinct on grey metal.
 COLOURS = [(0, 220, 0), (255, 160, 0), (0, 200, 255), (255, 0, 255), (255, 255, 0), (80, 80, 255)]
@@ -276,7 +283,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                                  occluder_models=occluders, min_score=min_score,
                                                  min_margin=min_margin, height_offsets_mm=height_offsets_mm,
                                                  known_models=known, free_height=free_height, known_regions=labels,
-                                                 **({} if cand.kind == "workpiece" else NOT_A_PART))
+                                                 **kind_options(cand.kind))
             _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table)
     for i, (cand, pose) in enumerate(located):
         objects.append(object_entry(cand, pose, COLOURS[i % len(COLOURS)]))
@@ -523,8 +530,6 @@ def _unlike_the_others(cand: Candidate, pose, others: list[Candidate], image, K,
     (within ``min_margin``): then which of the two stands there is not told by the image, and the pose
     is refused as ambiguous. Devset setup_000: two strap clamp sets that differ only in their straps'
     length were each located at the other's place, one of them passed by its sigma."""
-    from app.geometry.transforms import make_pose, transform_points
-
     model = cand.prepare()
     T = np.asarray(pose.T_table_obj, float)
     c = transform_points(T, model.center_obj[None])[0]
@@ -621,7 +626,6 @@ def _carrier(surfaces, pose, cand) -> tuple[str, ...]:
     """What the located object rests on, down to the table: its names, nearest first. A gap of more
     than 1 mm to the highest surface below is an unknown support (parallels or a block not in the
     library) of that height."""
-    from app.geometry.transforms import transform_points
     from app.vision.support_chain import placed_height_above
 
     # a strap clamp's stud reaches down into the T-slot: it stands on its heel block's face

@@ -427,8 +427,7 @@ def _choose(ctx: LocateContext, fits: list[Fit]) -> tuple[Fit, list[Fit], list]:
     # (the flip moves the part by a few mm when its outline is not centred on its mass: aligned in the
     # plane first). Explaining clearly more of the image (25 % more supported edge length) at an
     # acceptable score wins even at a lower share: the pocket's walls are rarely all supported.
-    upright_only = len(model.resting_states) == 1 and model.resting_states[0].cad_axis == "+z"
-    if best.converged and not upright_only:      # a fixture never lies upside down
+    if best.converged and not model.stands_as_modelled:      # a fixture never lies upside down
         for T_alt in turned_over(model, best.T):
             found_alt = starts_from_poses(model, [T_alt], ctx.T_cam_table, ctx.K, ctx.dist, ctx.eimg,
                                           capture_mm=max(5.0, 0.06 * model.diameter_mm), capture_deg=2.0, n_peaks=1)
