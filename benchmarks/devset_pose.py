@@ -82,13 +82,19 @@ def scenes(family: str = "setup") -> list[dict]:
 # --perturb: the image degraded before the engine sees it (a stress test of the refusals and the sigma
 # on pictures rougher than the devset's; deterministic per scene)
 PERTURB = ""
-PERTURBATIONS = ("jpeg60", "blur", "noise", "dark", "blur_noise", "dark_noise")
+PERTURBATIONS = ("jpeg60", "blur", "resample", "linear", "noise", "dark", "blur_noise", "dark_noise")
+GAMMA = 2.2     # the devset's encoding gamma (every scene's ``sensor.gamma``)
 
 
 def perturbed(image, kind: str, seed: int):
     """``image`` degraded as a shop camera might: ``jpeg60`` re-encoded at JPEG quality 60; ``blur``
-    defocused (Gaussian, sigma 1.2 px); ``noise`` read noise (sigma 4 grey levels); ``dark``
-    under-exposed to 45 % (fewer grey levels per edge); ``blur_noise`` and ``dark_noise`` both."""
+    defocused (Gaussian, sigma 1.2 px, in linear light as a lens blurs, on top of the render's own
+    0-1 px); ``resample`` the same Gaussian on the encoded grey levels (a camera's or a viewer's
+    down-scaling; it moves each edge's 50 % point in linear light towards the bright side);
+    ``linear`` encoded without gamma (``255 * L``: many machine-vision cameras' default), read by an
+    engine that assumes the usual 2.2; ``noise`` read noise (sigma 4 grey levels); ``dark`` every grey
+    level scaled by 0.45 (under-exposed: fewer grey levels per edge); ``blur_noise`` and ``dark_noise``
+    both."""
     import cv2
 
     if kind == "jpeg60":
@@ -98,7 +104,12 @@ def perturbed(image, kind: str, seed: int):
         raise ValueError(f"unknown perturbation {kind!r}; known: {', '.join(PERTURBATIONS)}")
     img = image.astype(np.float32)
     if kind.startswith("blur"):
+        linear = cv2.GaussianBlur((img / 255.0) ** GAMMA, (0, 0), 1.2)
+        img = 255.0 * linear ** (1.0 / GAMMA)
+    if kind == "resample":
         img = cv2.GaussianBlur(img, (0, 0), 1.2)
+    if kind == "linear":
+        img = 255.0 * (img / 255.0) ** GAMMA
     if kind.startswith("dark"):
         img = img * 0.45
     if kind.endswith("noise"):
@@ -153,7 +164,8 @@ def run_scene(entry: dict, method: str) -> dict:
            "half": 0 if entry["index"] < 20 else 1, "pair": entry.get("pair"), "ms": ms, "cpu_ms": cpu_ms,
            "prep_ms": prep_ms,
            "markers_seen": len(sc.gt["visible_marker_ids"]),
-           "visible_fraction": float(wp["visible_fraction"]), "crash": err}
+           "visible_fraction": float(wp["visible_fraction"]), "crash": err,
+           "gamma": (res.table or {}).get("gamma") if res is not None else None}
     obj = None if res is None else next((o for o in res.objects if o["kind"] == "workpiece"), None)
     row["located"] = obj is not None
     wp_fail = [] if res is None else [n["reason"] for n in res.not_found if n.get("name") == wp["name"]]
