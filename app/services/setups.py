@@ -579,7 +579,7 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
                                          table_covariance=(tp.covariance, tp.centroid_table_mm) if tp else None,
                                          known_models=((table.prepare(), np.eye(4)),),
                                          known_regions=marker_labels_table(layout or {}),
-                                         **kind_options(cand.kind))
+                                         **kind_options(cand.kind), **({"gamma": tp.gamma} if tp else {}))
     if not pose:
         raise Invalid(f"refinement from this pose failed: {pose.reason}; nudge the part closer to where "
                       "it is in the picture and try again")

@@ -52,6 +52,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from app.geometry.transforms import check_pose, make_pose, rvec_tvec_to_pose, transform_points
+from app.vision.encoding_gamma import GammaReading, read_encoding_gamma
 from app.vision.intrinsics import distort_px, undistort_px
 from app.vision.overlay_text import put_banner, put_label, style_for
 
@@ -98,6 +99,8 @@ class TablePose:
     warnings: tuple[str, ...] = ()
     K: np.ndarray | None = None               # intrinsics used (for drawing the axes)
     dist: np.ndarray | None = None
+    gamma: float = 2.2                        # the image decoded with it (edges of every later stage too)
+    gamma_reading: GammaReading | None = None  # what the markers said about it
 
     def __bool__(self) -> bool:
         return True
@@ -116,6 +119,8 @@ class TablePose:
             "centroid_table_mm": [round(float(v), 3) for v in self.centroid_table_mm],
             "time_ms": round(float(self.time_ms), 1),
             "warnings": list(self.warnings),
+            "gamma": self.gamma,
+            "gamma_reading": self.gamma_reading.to_dict() if self.gamma_reading is not None else None,
         }
 
 
@@ -414,7 +419,7 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
                  min_markers: int = 2, max_marker_residual_px: float = 0.75,
                  max_sigma_rot_deg: float = 0.5, gamma: float = 2.2,
                  refine_corners: bool = True, min_corner_sigma_px: float = 0.02,
-                 final_fit: str = "edges") -> TablePose | TableFailure:
+                 final_fit: str = "edges", read_gamma: bool = True) -> TablePose | TableFailure:
     """Locate the table from its markers in one raw (distorted) image.
 
     Parameters
@@ -428,6 +433,8 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
     max_sigma_rot_deg : a fit whose 1-sigma rotation about any table axis exceeds this is a failure
         (markers on one line or too few and small to fix the table's tilt).
     gamma : the camera's gamma, undone before taking 50 % edge crossings.
+    read_gamma : read the gamma from the markers' cells (:func:`read_encoding_gamma`) and use the
+        reading where ``gamma`` measurably is not the image's (``TablePose.gamma``: the one used).
     refine_corners : False uses OpenCV's detector corners (for comparison).
     final_fit : "edges" (default) refines the pose and its covariance on the border points
         themselves (see ``_refine_edges``); "corners" keeps the joint corner fit.
@@ -452,6 +459,13 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
     obj: dict[int, np.ndarray] = {}
     img: dict[int, np.ndarray] = {}
     warnings = []
+    reading = None
+    if read_gamma and refine_corners:
+        reading = read_encoding_gamma(gray, {i: cs[0] for i, cs in found.items() if i in by_id and len(cs) == 1},
+                                      dic, assumed=gamma)
+        if reading.gamma != gamma:
+            warnings.append(reading.reason)
+            gamma = reading.gamma
     lin = linearise(gray, gamma) if refine_corners else None
     edges: dict[int, list[np.ndarray]] = {}
     for i, cs in sorted(found.items()):
@@ -568,7 +582,7 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
         method=f"markers ({fit_used} fit)",
         residual_px=per, sigma_xyz_mm=sigma_xyz, sigma_rot_deg=sigma_rot_deg, covariance=cov,
         centroid_table_mm=centroid, corners_px={i: distort_px(img[i], K, dist) for i in use},
-        time_ms=ms(), warnings=tuple(warnings), K=K, dist=dist)
+        time_ms=ms(), warnings=tuple(warnings), K=K, dist=dist, gamma=gamma, gamma_reading=reading)
 
 
 # ---------------------------------------------------------------------------------------------

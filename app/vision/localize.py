@@ -213,9 +213,11 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         return LocalizeResult(False, table.reason, table.to_dict(), [], [], stages, table_pic,
                               {"table": table_ms, "total": (time.perf_counter() - t_all) * 1e3})
     tdict = table.to_dict()
+    read = table.gamma_reading
+    gamma_note = f"; {read.reason}" if read is not None and table.gamma != read.assumed else ""
     done(Stage("table markers", True, table_ms,
-               f"table located from markers {', '.join(map(str, table.ids_used))}; RMS {table.rms_px:.2f} px",
-               tdict, table_pic))
+               f"table located from markers {', '.join(map(str, table.ids_used))}; RMS {table.rms_px:.2f} px"
+               f"{gamma_note}", tdict, table_pic))
     T_cam_table = table.T_cam_table
     table_cov = (table.covariance, table.centroid_table_mm)     # its error enters every object's sigma
 
@@ -226,7 +228,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         photo_view = View.of(image, K, dist, table, known_edge_mask(image.shape[:2], K, dist, T_cam_table,
                                                                     list(known), labels))
     table_xy = _table_xy(table_model, table_layout)
-    edges = _edges_once(image)
+    edges = _edges_once(image, table.gamma)
     # --- objects: clamps first (they occlude the workpiece), then workpieces
     ordered = sorted(candidates, key=lambda c: 0 if c.kind == "clamp" else 1)
     located: list[tuple[Candidate, Any]] = []
@@ -242,7 +244,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                         min_score=max(min_score, 0.6), min_margin=min_margin,
                                         height_offsets_mm=height_offsets_mm, known_models=known,
                                         free_height=free_height, known_regions=labels,
-                                        table_covariance=table_cov)
+                                        table_covariance=table_cov, gamma=table.gamma)
             accepted += list(rec.accepted)
             ranked += list(rec.ranked)
             if not rec:
@@ -383,16 +385,16 @@ def _merge_by_place(cad: list, photo: list, by_name: dict, min_margin: float) ->
     return out, lost
 
 
-def _edges_once(image: np.ndarray) -> Callable[[], object_pose.EdgeImage]:
-    """The image's edges (:func:`object_pose.prepare_image` as :func:`object_pose.locate_object` makes
-    them), made on the first call and shared by every object searched in it: each object's search
+def _edges_once(image: np.ndarray, gamma: float) -> Callable[[], object_pose.EdgeImage]:
+    """The image's edges (:func:`object_pose.prepare_image`, decoded with the ``gamma`` the table's
+    markers were read with), made on the first call and shared by every object searched in it: each object's search
     then masks its own known geometry out of a copy, and the per-image caches (the table's mask, the
     scorers' maps) are kept in it for the next object."""
     held: list = []
 
     def get() -> object_pose.EdgeImage:
         if not held:
-            held.append(object_pose.prepare_image(image, gamma=object_pose.LocateOptions().gamma))
+            held.append(object_pose.prepare_image(image, gamma=gamma))
         return held[0]
 
     return get

@@ -43,6 +43,23 @@ def test_localize_cli_finds_the_part(tmp_path, capsys):
     assert cv2.imread(str(tmp_path / "overlay.png")) is not None
 
 
+def test_localize_cli_reads_a_camera_without_gamma(tmp_path, capsys):
+    """A machine-vision camera's default: linear light, no gamma. The table's markers say so (the
+    edges of their black and white cells), and the part is decoded with the gamma read."""
+    sc = library_scene(camera=(("gamma", 1.0), ("blur_sigma_px", 1.0)))
+    part = write_inputs(tmp_path, sc)
+    table = LIBRARY / library_entry("tslot_table_800x400").file
+    rc = main(["localize", "--image", str(tmp_path / "img.png"), "--intrinsics", str(tmp_path / "cam.json"),
+               "--table", str(table), "--layout", str(tmp_path / "layout.json"), "--model", str(part), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["ok"], out["reason"]
+    assert out["table"]["gamma"] == pytest.approx(1.0, abs=0.15), out["table"]["gamma_reading"]
+    (obj,) = out["objects"]
+    T = np.array(obj["T_table_obj"])
+    assert np.linalg.norm(T[:2, 3] - sc.T_table_obj[:2, 3]) < 0.3, (T[:3, 3], sc.T_table_obj[:3, 3])
+    assert rotation_angle_deg(T, sc.T_table_obj) < 0.1
+
+
 def test_localize_cli_says_why_without_markers(tmp_path, capsys):
     sc = library_scene(hide_markers=True)
     part = write_inputs(tmp_path, sc)

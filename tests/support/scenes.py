@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -47,7 +47,9 @@ def library_mesh(key: str) -> trimesh.Trimesh:
 @lru_cache(maxsize=None)
 def library_scene(workpiece_key: str = "bracket_140", x_mm: float = 420.0, y_mm: float = 210.0,
                   c_deg: float = 17.0, seed: int = 3, width: int = 1280, height: int = 800,
-                  hide_markers: bool = False) -> LibraryScene:
+                  hide_markers: bool = False, camera: tuple[tuple[str, float], ...] = ()) -> LibraryScene:
+    """The example bracket on the example table in a random view; ``camera`` overrides the render's
+    camera settings as (name, value) pairs (``gamma``, ``blur_sigma_px``, ...; cached calls hash them)."""
     table = library_entry("tslot_table_800x400")
     layout = json.loads((LIBRARY / table.fiducials).read_text())
     mesh = library_mesh(workpiece_key)
@@ -57,7 +59,7 @@ def library_scene(workpiece_key: str = "bracket_140", x_mm: float = 420.0, y_mm:
     scene = random_scene(rng, width=width, height=height, objects=[SceneObject(workpiece_key, mesh, T)],
                          table_mesh=library_mesh("tslot_table_800x400"), table_layout=scene_layout,
                          min_visible_markers=0 if hide_markers else 4, distance_mm=(600.0, 1000.0))
-    r = render_scene(scene, rng)
+    r = render_scene(replace(scene, **dict(camera)), rng)
     return LibraryScene(r.image, scene.K, scene.dist, layout, T, scene.T_cam_table, workpiece_key, mesh)
 
 
