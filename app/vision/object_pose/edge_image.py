@@ -34,6 +34,7 @@ class EdgeImage:
     edge_angle: np.ndarray
     edge_mag: np.ndarray
     noise_linear: float
+    gamma: float = 2.2                           # the decoding's: edge contrasts are judged at their grey level
     cache: dict = field(default_factory=dict)   # per-image intermediate results shared by models
 
 
@@ -66,10 +67,10 @@ def prepare_image(image: np.ndarray, *, gamma: float = 2.2, canny_low: float | N
     gy16 = np.clip(np.round(gy), -32767, 32767).astype(np.int16)
     edges = cv2.Canny(gx16, gy16, lo, hi, L2gradient=True)
     noise_lin = float(noise / 255.0 * gamma * 0.5 ** (gamma - 1))  # slope of the decode at mid-grey
-    return _edge_image(lin, edges, np.arctan2(gy, gx), mag, noise_lin)
+    return _edge_image(lin, edges, np.arctan2(gy, gx), mag, noise_lin, float(gamma))
 
 
-def _edge_image(lin, edges, angle, mag, noise_lin) -> EdgeImage:
+def _edge_image(lin, edges, angle, mag, noise_lin, gamma) -> EdgeImage:
     H, W = edges.shape
     dist_px, labels = cv2.distanceTransformWithLabels(
         np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, 5,
@@ -82,7 +83,7 @@ def _edge_image(lin, edges, angle, mag, noise_lin) -> EdgeImage:
                      nearest=nearest, edge_uv=edge_uv,
                      edge_angle=full_angle[vv, uu] if full_angle is not None else angle,
                      edge_mag=mag[vv, uu] if mag.shape == edges.shape else mag, noise_linear=noise_lin,
-                     cache={"angle_full": angle, "mag_full": mag})
+                     gamma=gamma, cache={"angle_full": angle, "mag_full": mag})
 
 
 def nearest_edge_maps(eimg: EdgeImage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -127,7 +128,7 @@ def mask_known_edges(eimg: EdgeImage, known: list[tuple[PreparedModel, np.ndarra
         np.maximum(mask, eimg.cache[key][1], out=mask)
     edges = np.where(mask > 0, 0, eimg.edges).astype(np.uint8)
     return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
-                       eimg.noise_linear)
+                       eimg.noise_linear, eimg.gamma)
 
 
 def mask_table_regions(eimg: EdgeImage, regions_table: list, T_cam_table: np.ndarray, K, dist,
@@ -151,4 +152,4 @@ def mask_table_regions(eimg: EdgeImage, regions_table: list, T_cam_table: np.nda
     mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
     edges = np.where(mask > 0, 0, eimg.edges).astype(np.uint8)
     return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
-                       eimg.noise_linear)
+                       eimg.noise_linear, eimg.gamma)

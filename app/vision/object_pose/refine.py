@@ -18,7 +18,7 @@ from app.vision.object_pose.uncertainty import PRIOR_PX, cauchy_weights, prior_o
 
 
 def edges_along_normals(lin: np.ndarray, uv: np.ndarray, normal: np.ndarray, search_px: float,
-                         plateau_px: float = 2.5, step_px: float = 0.25):
+                         plateau_px: float = 2.5, step_px: float = 0.25, gamma: float | None = None):
     """Find the image edge near each point along its normal; position at the 50 % crossing.
 
     For each sample a profile of the gamma-decoded image is read along the normal (bilinear, every
@@ -26,7 +26,13 @@ def edges_along_normals(lin: np.ndarray, uv: np.ndarray, normal: np.ndarray, sea
     Gaussian preference for small offsets; its position is where the profile crosses the mean of the
     two plateaus ``plateau_px`` before and after the peak (linear interpolation).
 
-    Returns offset (N,) px along the normal, contrast (N,) (plateau difference, linear units).
+    Returns offset (N,) px along the normal, contrast (N,) (plateau difference, linear units). With
+    the image's ``gamma``, a contrast between plateaus darker than mid-grey is given as at mid-grey:
+    scaled up by the decode's slope at mid-grey over its slope at the plateaus' levels (RMS of the
+    two). Noise is even in grey levels, and decoding squeezes the dark ones: a floor set for
+    mid-grey dropped a dark edge that stood as far above its noise as a bright one (on the devset
+    under-exposed and noisy, 0-17 % of the true poses' edges passed it). Brighter plateaus are left
+    as they are: raising their floor lost right results on the devset as rendered.
     """
     offs = np.arange(-(search_px + plateau_px + 1.0), search_px + plateau_px + 1.0 + 1e-9, step_px)
     L = len(offs)
@@ -61,7 +67,12 @@ def edges_along_normals(lin: np.ndarray, uv: np.ndarray, normal: np.ndarray, sea
     frac = np.where(has, fa / np.where(fa != fb, fa - fb, 1.0), 0.5)
     off = offs[j] + frac * step_px
     off = np.where(has, off, np.nan)
-    return off, np.abs(hi - lo)
+    contrast = np.abs(hi - lo)
+    if gamma is not None:
+        k = (gamma - 1.0) / gamma           # d(L) / d(grey) grows as grey^(gamma - 1) = L^k
+        slope = np.sqrt(0.5 * (np.maximum(lo, 1e-6) ** (2 * k) + np.maximum(hi, 1e-6) ** (2 * k)))
+        contrast = contrast * np.maximum(1.0, 0.5 ** (gamma - 1.0) / slope)
+    return off, contrast
 
 
 def _clear_of_other_edges(model: PreparedModel, es, radius_px: float, max_turn_deg: float = 20.0) -> np.ndarray:
@@ -125,7 +136,7 @@ def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, 
                                   occlusion_test=True, subset=subset)
         if len(es.index) < 12:
             return T, {"n_visible": len(es.index), "failed": "too few of its edges are visible"}
-        off, contrast = edges_along_normals(eimg.linear, es.uv_px, es.normal_uv, r)
+        off, contrast = edges_along_normals(eimg.linear, es.uv_px, es.normal_uv, r, gamma=eimg.gamma)
         seen = np.isfinite(off) & (contrast >= min_contrast)
         good = seen & _clear_of_other_edges(model, es, r + 3.0)
         if good.sum() < 10:
@@ -186,7 +197,7 @@ def edge_support(eimg, model, T_table_obj, T_cam_table, K, dist, occluders_cam, 
                               occlusion_test=True, subset=subset)
     if len(es.index) == 0:
         return 0.0, es, np.zeros(0, bool)
-    off, contrast = edges_along_normals(eimg.linear, es.uv_px, es.normal_uv, search_px)
+    off, contrast = edges_along_normals(eimg.linear, es.uv_px, es.normal_uv, search_px, gamma=eimg.gamma)
     sup = np.isfinite(off) & (np.abs(np.nan_to_num(off, nan=99.0)) <= support_px) & (contrast >= min_contrast)
     return float(sup.mean()), es, sup
 

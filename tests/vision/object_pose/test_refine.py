@@ -13,7 +13,7 @@ from app.geometry.transforms import pose_from_xyz_euler, transform_points
 from app.synth.scene import look_at_pose
 from app.vision.object_pose.edge_image import prepare_image
 from app.vision.object_pose.pose_params import FREE_6DOF
-from app.vision.object_pose.refine import refine_pose
+from app.vision.object_pose.refine import edges_along_normals, refine_pose
 from app.vision.object_pose.uncertainty import cauchy_weights
 
 W, H, SS = 640, 480, 8               # image size (px) and supersampling of the rendering
@@ -91,3 +91,34 @@ def test_cauchy_weights_scale_with_the_residuals_own_spread():
     assert w[-1] < 0.06                                 # 15 sigma out: nearly gone
     assert cauchy_weights(np.concatenate([10 * r, [1.5]]))[-1] > 0.5   # ten times the noise: 1.5 sigma
     assert cauchy_weights(np.zeros(5)) == pytest.approx(np.ones(5))     # the floor: no division by zero
+
+
+def _step(dark_grey: int, bright_grey: int, noise_grey: float = 0.0) -> np.ndarray:
+    """8-bit image (gamma 2.2) of a vertical step, blurred 1 px in linear light, with read noise."""
+    lin = np.full((60, 80), (dark_grey / 255.0) ** 2.2, np.float32)
+    lin[:, 40:] = (bright_grey / 255.0) ** 2.2
+    img = 255.0 * cv2.GaussianBlur(lin, (0, 0), 1.0) ** (1 / 2.2)
+    img += np.random.default_rng(1).normal(0.0, noise_grey, img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def _contrast(img, gamma):
+    eimg = prepare_image(img)
+    uv = np.stack([np.full(20, 39.5), np.arange(20, 40.0)], axis=1)
+    off, contrast = edges_along_normals(eimg.linear, uv, np.tile([1.0, 0.0], (20, 1)), 3.0, gamma=gamma)
+    assert np.all(np.abs(off) <= 1.5) and np.median(np.abs(off)) < 0.5, off     # found where it is
+    return float(np.median(contrast))
+
+
+def test_a_dark_edge_is_judged_against_its_own_noise():
+    """30 grey levels between two dark plateaus (30 -> 60) with 4 grey levels of noise: 7.5 times the
+    noise, as far above it as an edge 30 levels wide at mid-grey. In linear light it is only 0.03,
+    under the floor of 6 times the noise taken at mid-grey (0.09); scaled to mid-grey it passes."""
+    noise_lin = 4.0 / 255.0 * 2.2 * 0.5 ** 1.2
+    floor = 6.0 * noise_lin
+    dark = _step(30, 60, noise_grey=4.0)
+    assert _contrast(dark, None) < floor < _contrast(dark, 2.2)
+    # the same 30 levels at mid-grey pass either way, and a bright edge keeps its linear contrast
+    assert _contrast(_step(113, 143), 2.2) > floor
+    bright = _step(150, 180)
+    assert _contrast(bright, 2.2) == pytest.approx(_contrast(bright, None))
