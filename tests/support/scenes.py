@@ -48,8 +48,9 @@ def library_mesh(key: str) -> trimesh.Trimesh:
 def library_scene(workpiece_key: str = "bracket_140", x_mm: float = 420.0, y_mm: float = 210.0,
                   c_deg: float = 17.0, seed: int = 3, width: int = 1280, height: int = 800,
                   hide_markers: bool = False, camera: tuple[tuple[str, float], ...] = ()) -> LibraryScene:
-    """The example bracket on the example table in a random view; ``camera`` overrides the render's
-    camera settings as (name, value) pairs (``gamma``, ``blur_sigma_px``, ...; cached calls hash them)."""
+    """A part of the example library on the example table in a random view; ``camera`` overrides the
+    render's camera settings as (name, value) pairs (``gamma``, ``blur_sigma_px``, ...; hashable, as
+    the calls are cached)."""
     table = library_entry("tslot_table_800x400")
     layout = json.loads((LIBRARY / table.fiducials).read_text())
     mesh = library_mesh(workpiece_key)
