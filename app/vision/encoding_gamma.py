@@ -60,6 +60,11 @@ class GammaReading:
     groups: int
     reason: str
 
+    @property
+    def changed(self) -> bool:
+        """The image is decoded with another gamma than the one assumed."""
+        return self.gamma != self.assumed
+
     def to_dict(self) -> dict:
         return asdict(self)
 
@@ -122,8 +127,7 @@ def _marker_transitions(gray: np.ndarray, grid: np.ndarray, corners_px: np.ndarr
 def _group_bias(group, gamma: float) -> float | None:
     """The polarity term (cells) of one (marker, direction) fit at ``gamma``; None if too few crossings."""
     windows, x_t, pol, lines, dark_lv, bright_lv = group
-    lut = (np.arange(256) / 255.0) ** gamma
-    dec = lambda v: np.interp(v, np.arange(256), lut)        # noqa: E731  bilinear grey -> linear light
+    dec = lambda v: (np.asarray(v) / 255.0) ** gamma        # noqa: E731  grey (bilinear, float) -> linear light
     lo, hi = dec(dark_lv)[lines], dec(bright_lv)[lines]     # the decode is monotonic: it keeps medians
     ok = hi - lo > 0.05
     p = (dec(windows) - lo[:, None]) / np.maximum(hi - lo, 1e-9)[:, None]

@@ -463,7 +463,7 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
     if read_gamma and refine_corners:
         reading = read_encoding_gamma(gray, {i: cs[0] for i, cs in found.items() if i in by_id and len(cs) == 1},
                                       dic, assumed=gamma)
-        if reading.gamma != gamma:
+        if reading.changed:
             warnings.append(reading.reason)
             gamma = reading.gamma
     lin = linearise(gray, gamma) if refine_corners else None

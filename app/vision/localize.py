@@ -214,7 +214,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                               {"table": table_ms, "total": (time.perf_counter() - t_all) * 1e3})
     tdict = table.to_dict()
     read = table.gamma_reading
-    gamma_note = f"; {read.reason}" if read is not None and table.gamma != read.assumed else ""
+    gamma_note = f"; {read.reason}" if read is not None and read.changed else ""
     done(Stage("table markers", True, table_ms,
                f"table located from markers {', '.join(map(str, table.ids_used))}; RMS {table.rms_px:.2f} px"
                f"{gamma_note}", tdict, table_pic))
