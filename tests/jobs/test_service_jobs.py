@@ -83,7 +83,8 @@ def test_a_job_past_its_timeout_fails_with_that_reason(tmp_path):
         accepted = start_setup(c, machine_id, bracket)
         job = wait_for(c, accepted["job_url"], lambda j: j["status"] in ("done", "failed"), 120)
         assert job["status"] == "failed" and job["reason"].startswith("timed out after 1 s"), job
-        setup = c.get(accepted["url"]).json()
+        # the watchdog ends the job first, then marks its setup: a client reading at once may be between
+        setup = wait_for(c, accepted["url"], lambda s: s["status"] != "running", 30, "the setup's end")
         assert setup["status"] == "failed" and setup["reason"] == job["reason"]
 
 
