@@ -78,6 +78,9 @@ def test_a_bracket_hidden_by_clamps_not_in_the_library_is_not_read_on_clutter():
 def test_a_pin_block_whose_place_the_image_does_not_fix_is_not_located():
     """Scene 40: a 32 mm pin block under clamps that are not in the library. Its best fit stood 300 mm
     away on a clamp's heel block with a 31 mm sigma in x (0.3 deg in rotation, 68 deg off): not a
-    place, and it was returned as one."""
+    place, and it was returned as one. Which refusal catches it depends on the render's last digits: on
+    the libraries of 2026-11-29 (a fresh install) two poses fit it within 1 % and it is refused as
+    ambiguous before its sigma is taken; the sigma rule itself is tested in test_place_not_fixed."""
     why = _part_refused(40)
-    assert why["kind"] == "not_found" and "does not fix its place" in why["reason"], why
+    assert (why["kind"] == "not_found" and "does not fix its place" in why["reason"]) or \
+        (why["kind"] == "ambiguous" and "two different poses fit almost equally well" in why["reason"]), why
