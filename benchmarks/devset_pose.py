@@ -82,7 +82,26 @@ def scenes(family: str = "setup") -> list[dict]:
 # --perturb: the image degraded before the engine sees it (a stress test of the refusals and the sigma
 # on pictures rougher than the devset's; deterministic per scene)
 PERTURB = ""
-PERTURBATIONS = ("jpeg60", "blur", "resample", "linear", "noise", "dark", "blur_noise", "dark_noise")
+PERTURBATIONS = ("jpeg60", "blur", "resample", "linear", "noise", "dark", "blur_noise", "dark_noise", "calib")
+# ``calib``: the image as rendered, the engine told slightly wrong intrinsics, as a real calibration is
+# wrong: focal length off by N(0, CALIB_F_REL) (both axes alike), principal point by N(0, CALIB_C_PX) px
+# per axis. Careful calibrations of the same camera differ by 0.1-1 % in f and 1-5 px in c (BENCHMARKS.md,
+# "Calibration on real image sets": 0.5 % and 1.0 % between our corner window and OpenCV's sample).
+CALIB_F_REL = 0.004
+CALIB_C_PX = 3.0
+
+
+def told_intrinsics(K, kind: str, seed: int):
+    """The intrinsics the engine is told under ``kind`` (``K`` itself unless ``calib``)."""
+    if kind != "calib":
+        return K
+    rng = np.random.default_rng(1000 + seed)
+    f, dc = 1.0 + CALIB_F_REL * rng.standard_normal(), CALIB_C_PX * rng.standard_normal(2)
+    K2 = np.array(K, float)
+    K2[0, 0] *= f
+    K2[1, 1] *= f
+    K2[:2, 2] += dc
+    return K2
 GAMMA = 2.2     # the devset's encoding gamma (every scene's ``sensor.gamma``)
 
 
@@ -94,9 +113,11 @@ def perturbed(image, kind: str, seed: int):
     ``linear`` encoded without gamma (``255 * L``: many machine-vision cameras' default), read by an
     engine that assumes the usual 2.2; ``noise`` read noise (sigma 4 grey levels); ``dark`` every grey
     level scaled by 0.45 (under-exposed: fewer grey levels per edge); ``blur_noise`` and ``dark_noise``
-    both."""
+    both; ``calib`` leaves the image as it is (:func:`told_intrinsics` changes what the engine is told)."""
     import cv2
 
+    if kind == "calib":
+        return image
     if kind == "jpeg60":
         _, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 60])
         return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
@@ -133,6 +154,7 @@ def run_scene(entry: dict, method: str) -> dict:
         image = cv2.imread(str(DEVSET / entry["image"]), cv2.IMREAD_UNCHANGED)
     if PERTURB:
         image = perturbed(image, PERTURB, seed=int(entry.get("index", 0)))
+    K_told = told_intrinsics(sc.K, PERTURB, seed=int(entry.get("index", 0)))
     wp = sc.workpiece
     mesh = wp["mesh_obj"] if "mesh_obj" in wp else trimesh.load(DEVSET / wp["mesh"], force="mesh")
     cands = [Candidate(wp["name"], mesh, kind="workpiece")]
@@ -154,7 +176,7 @@ def run_scene(entry: dict, method: str) -> dict:
     prep_ms = (time.perf_counter() - t) * 1e3
     t, cpu = time.perf_counter(), time.process_time()
     try:
-        res = localize(image, sc.K, sc.dist, sc.layout, cands, table_model=sc.table_candidate, **kw)
+        res = localize(image, K_told, sc.dist, sc.layout, cands, table_model=sc.table_candidate, **kw)
         err = None
     except Exception as e:  # noqa: BLE001 - a crash is a result here, reported as such
         res, err = None, f"{type(e).__name__}: {e}"

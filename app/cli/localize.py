@@ -95,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         # named models: the support chain (fixtures first, the part on their surfaces or over risers)
         result = localize(image, cam.K_array, cam.dist_array, layout, candidates, recognise=recognise,
-                          table_model=table, chain=not recognise, riser_heights_mm=tuple(args.riser))
+                          table_model=table, chain=not recognise, riser_heights_mm=tuple(args.riser),
+                          intrinsics_sigma=cam.sigma_tuple)
     except Exception as exc:  # noqa: BLE001 - an engine bug must still end with a sentence, not a traceback
         print(f"setupcam localize: internal error in localisation ({exc.__class__.__name__}: {exc}); "
               "please report it with the image", file=sys.stderr)

@@ -34,7 +34,10 @@ def validate_intrinsics(intrinsics: dict | None) -> dict | None:
     if intrinsics is None:
         return None
     try:
-        return parse_intrinsics(intrinsics).model_dump()
+        out = parse_intrinsics(intrinsics).model_dump()
+        if out.get("sigma") is None:       # absent: the engine's default, stored as absent
+            out.pop("sigma", None)
+        return out
     except ValueError as exc:
         raise Invalid(str(exc)) from None
 

@@ -31,6 +31,7 @@ from app.store.models import Capture, Job, LibraryModel, Setup, utcnow
 from app.vision import object_pose
 from app.vision.fiducials import locate_table
 from app.vision.image_header import ImageHeaderError, image_size
+from app.vision.intrinsics import intrinsics_sigma
 from app.vision.localize import (Candidate, draw_pose_overlay, kind_options, localize, marker_labels_table,
                                  object_entry)
 from app.vision.photo_model import PhotoModel, View, known_edge_mask, locate_near
@@ -274,7 +275,8 @@ def run_setup_job(run: JobRun, setup_id: int) -> Outcome:
         # models asked for: the support chain (fixtures first, the part on their surfaces or over risers);
         # recognition picks among the whole library and keeps the plain search
         result = localize(image, np.asarray(intr["K"]), np.asarray(intr["dist"]), layout, candidates,
-                          recognise=recognise, on_stage=on_stage, table_model=table, chain=not recognise)
+                          recognise=recognise, on_stage=on_stage, table_model=table, chain=not recognise,
+                          intrinsics_sigma=intrinsics_sigma(intr))
     except JobStopped:
         raise
     except Exception as exc:  # noqa: BLE001 - a crash must end the job as failed, with a reason
@@ -567,7 +569,7 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
                                                     "revision": machine.table_revision}])
     layout = library.get_revision(session, machine.table_model_id, machine.table_revision).fiducials
     # the table pose's covariance (the stored result keeps its sigmas only): the markers again
-    tp = locate_table(image, K, dist, layout or {}) if layout else None
+    tp = locate_table(image, K, dist, layout or {}, intrinsics_sigma=intrinsics_sigma(s.intrinsics)) if layout else None
     if cand.photo is not None:      # a photo model: its search, near the operator's pose
         ign = known_edge_mask(image.shape[:2], K, dist, result.T_cam_table, [(table.prepare(), np.eye(4))],
                               marker_labels_table(layout or {}))
@@ -576,7 +578,7 @@ def refine_object(session: Session, files: FileStore, settings, setup_id: int, *
     else:
         pose = object_pose.locate_object(image, K, dist, result.T_cam_table, cand.prepare(),
                                          start_poses=[obj.pose],
-                                         table_covariance=(tp.covariance, tp.centroid_table_mm) if tp else None,
+                                         table_covariance=tp.frame_error() if tp else None,
                                          known_models=((table.prepare(), np.eye(4)),),
                                          known_regions=marker_labels_table(layout or {}),
                                          **kind_options(cand.kind), **({"gamma": tp.gamma} if tp else {}))

@@ -53,7 +53,13 @@ from scipy.spatial.transform import Rotation
 
 from app.geometry.transforms import check_pose, make_pose, rvec_tvec_to_pose, transform_points
 from app.vision.encoding_gamma import GammaReading, read_encoding_gamma
-from app.vision.intrinsics import distort_px, undistort_px
+from app.vision.intrinsics import (
+    DEFAULT_INTRINSICS_SIGMA,
+    INTRINSICS_STEPS,
+    distort_px,
+    moved_intrinsics,
+    undistort_px,
+)
 from app.vision.overlay_text import put_banner, put_label, style_for
 
 # ---------------------------------------------------------------------------------------------
@@ -82,6 +88,9 @@ class TablePose:
         (the centroid of the used markers); sigma_rot_deg : 1-sigma rotation about the table's
         x, y, z axes. covariance : (6, 6) of (rotation about x, y, z in rad, shift x, y, z in mm).
     corners_px : {id: (4, 2)} refined corners, distorted px (as in the image).
+    intrinsics_jacobian : (6, 3) how the pose (as ``covariance``) moves per unit of the intrinsics
+        (focal length relative, cx px, cy px; :func:`app.vision.intrinsics.moved_intrinsics`);
+        intrinsics_sigma : their 1-sigma (None: the intrinsics are taken as exact).
     """
 
     T_cam_table: np.ndarray
@@ -101,9 +110,17 @@ class TablePose:
     dist: np.ndarray | None = None
     gamma: float = 2.2                        # the image decoded with it (edges of every later stage too)
     gamma_reading: GammaReading | None = None  # what the markers said about it
+    intrinsics_jacobian: np.ndarray | None = None
+    intrinsics_sigma: tuple[float, float, float] | None = None
 
     def __bool__(self) -> bool:
         return True
+
+    def frame_error(self) -> tuple:
+        """What every object's pose in this table frame inherits from it, as
+        :func:`app.vision.object_pose.uncertainty.table_covariance` takes it: (covariance, centroid,
+        intrinsics jacobian, intrinsics sigma)."""
+        return (self.covariance, self.centroid_table_mm, self.intrinsics_jacobian, self.intrinsics_sigma)
 
     def to_dict(self) -> dict:
         """JSON-ready: poses as 4x4 lists (mm), sigmas in mm and degrees."""
@@ -121,6 +138,8 @@ class TablePose:
             "warnings": list(self.warnings),
             "gamma": self.gamma,
             "gamma_reading": self.gamma_reading.to_dict() if self.gamma_reading is not None else None,
+            "intrinsics_sigma": None if self.intrinsics_sigma is None else
+            {"f_rel": self.intrinsics_sigma[0], "cx_px": self.intrinsics_sigma[1], "cy_px": self.intrinsics_sigma[2]},
         }
 
 
@@ -415,11 +434,46 @@ def _refine_edges(K, T0: np.ndarray, obj: dict[int, np.ndarray], edges: dict[int
     return pose(sol.x) @ Tc_inv, cov, float(np.sqrt(np.mean(r ** 2)))
 
 
+def _frame_step(T: np.ndarray, T2: np.ndarray, centroid: np.ndarray) -> np.ndarray:
+    """``e`` (rotation vector rad, shift mm; as the fits' covariance) with ``T2 = T @ E(e)``, ``E`` a
+    rotation about ``centroid`` and a shift."""
+    E = np.linalg.inv(T) @ T2
+    R = E[:3, :3]
+    return np.concatenate([Rotation.from_matrix(R).as_rotvec(), E[:3, 3] - centroid + R @ centroid])
+
+
+def _intrinsics_jacobian(K, dist, T: np.ndarray, obj: dict, img: dict, edges: dict | None, use: list,
+                         centroid: np.ndarray, min_sigma_px: float) -> np.ndarray:
+    """(6, 3): the final fit redone with the intrinsics moved (central differences along
+    :func:`moved_intrinsics`' directions): how the table pose moves per unit of each. The markers'
+    points are measured in the raw image; their ideal pixels are recomputed with the moved
+    intrinsics."""
+    cols = []
+    for k, h in enumerate(INTRINSICS_STEPS):
+        e = []
+        for step in (h, -h):
+            K2 = moved_intrinsics(K, k, step)
+
+            def ideal(q):
+                return undistort_px(distort_px(q, K, dist), K2, dist)
+
+            if edges is not None:
+                T2 = _refine_edges(K2, T, obj, {i: [ideal(q) for q in edges[i]] for i in use}, centroid,
+                                   min_sigma_px)[0]
+            else:
+                T2 = _refine(K2, np.concatenate([obj[i] for i in use]),
+                             np.concatenate([ideal(img[i]) for i in use]), T, centroid, min_sigma_px)[0]
+            e.append(_frame_step(T, T2, centroid))
+        cols.append((e[0] - e[1]) / (2.0 * h))
+    return np.column_stack(cols)
+
+
 def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dict, *,
                  min_markers: int = 2, max_marker_residual_px: float = 0.75,
                  max_sigma_rot_deg: float = 0.5, gamma: float = 2.2,
                  refine_corners: bool = True, min_corner_sigma_px: float = 0.02,
-                 final_fit: str = "edges", read_gamma: bool = True) -> TablePose | TableFailure:
+                 final_fit: str = "edges", read_gamma: bool = True,
+                 intrinsics_sigma: tuple | None = DEFAULT_INTRINSICS_SIGMA) -> TablePose | TableFailure:
     """Locate the table from its markers in one raw (distorted) image.
 
     Parameters
@@ -438,6 +492,9 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
     refine_corners : False uses OpenCV's detector corners (for comparison).
     final_fit : "edges" (default) refines the pose and its covariance on the border points
         themselves (see ``_refine_edges``); "corners" keeps the joint corner fit.
+    intrinsics_sigma : 1-sigma of the focal length (relative) and of cx, cy (px): with it the pose's
+        dependence on them is measured (``TablePose.intrinsics_jacobian``) for the objects' sigma;
+        None takes ``K`` as exact.
 
     Returns :class:`TablePose` or :class:`TableFailure` (falsy, with ``reason``).
     """
@@ -576,13 +633,19 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
                     f"{max_sigma_rot_deg:.2f} deg); {need} spread over the table")
     if len(use) <= 3:
         warnings.append(f"only {len(use)} markers used: the pose is weaker, see sigma")
+    k_jac = None
+    if intrinsics_sigma is not None:
+        k_jac = _intrinsics_jacobian(K, dist, T, obj, img, edges if fit_used == "edges" else None, use, centroid,
+                                     min_corner_sigma_px)
     rms = float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
     return TablePose(
         T_cam_table=T, ids_used=tuple(sorted(use)), ids_rejected=tuple(rejected), rms_px=rms,
         method=f"markers ({fit_used} fit)",
         residual_px=per, sigma_xyz_mm=sigma_xyz, sigma_rot_deg=sigma_rot_deg, covariance=cov,
         centroid_table_mm=centroid, corners_px={i: distort_px(img[i], K, dist) for i in use},
-        time_ms=ms(), warnings=tuple(warnings), K=K, dist=dist, gamma=gamma, gamma_reading=reading)
+        time_ms=ms(), warnings=tuple(warnings), K=K, dist=dist, gamma=gamma, gamma_reading=reading,
+        intrinsics_jacobian=k_jac,
+        intrinsics_sigma=None if intrinsics_sigma is None else tuple(float(v) for v in intrinsics_sigma))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -34,6 +34,7 @@ from app.geometry.support_surfaces import CARRYING_KINDS
 from app.vision import object_pose
 from app.vision.blas_threads import one_blas_thread
 from app.vision.fiducials import draw_table, locate_table
+from app.vision.intrinsics import DEFAULT_INTRINSICS_SIGMA
 from app.vision.overlay_text import put_banner, put_label, style_for
 from app.vision.photo_model import PhotoModel, View, decide_lookalikes, known_edge_mask
 from app.vision.photo_model import locate as locate_photo
@@ -175,7 +176,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
              on_stage: Callable[[Stage], None] | None = None, min_score: float = 0.5,
              min_margin: float = 0.1, height_offsets_mm=(0.0,), table_model: Candidate | None = None,
              chain: bool = False, free_height: bool = False,
-             riser_heights_mm: tuple | None = None) -> LocalizeResult:
+             riser_heights_mm: tuple | None = None,
+             intrinsics_sigma: tuple | None = DEFAULT_INTRINSICS_SIGMA) -> LocalizeResult:
     """Locate the table and the candidates in one image.
 
     Parameters
@@ -192,6 +194,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     riser_heights_mm : the shop's declared risers (its parallels' heights, mm), which a part over a
         riser of unknown height is tested against (support chain only), besides the heights of the
         candidates of kind ``support`` (:func:`riser_heights`), hidden under the part or not
+    intrinsics_sigma : how well ``K`` is known (focal length relative, cx px, cy px; 1 sigma): it
+        enters every object's sigma (:func:`app.vision.fiducials.locate_table`); None: ``K`` exact
     """
     K = np.asarray(K, float)
     dist = np.asarray(dist, float).ravel()
@@ -205,7 +209,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
 
     # --- table
     t = time.perf_counter()
-    table = locate_table(image, K, dist, table_layout)
+    table = locate_table(image, K, dist, table_layout, intrinsics_sigma=intrinsics_sigma)
     table_ms = (time.perf_counter() - t) * 1e3
     table_pic = draw_table(image, table)
     if not table:
@@ -219,7 +223,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                f"table located from markers {', '.join(map(str, table.ids_used))}; RMS {table.rms_px:.2f} px"
                f"{gamma_note}", tdict, table_pic))
     T_cam_table = table.T_cam_table
-    table_cov = (table.covariance, table.centroid_table_mm)     # its error enters every object's sigma
+    table_cov = table.frame_error()     # its error (and the intrinsics') enters every object's sigma
 
     known = ((table_model.prepare(), np.eye(4)),) if table_model is not None else ()
     labels = marker_labels_table(table_layout)

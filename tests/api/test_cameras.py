@@ -55,8 +55,23 @@ def test_camera_crud(client):
     assert r.status_code == 404 and r.json()["detail"] == f"camera {cam['id']} not found"
 
 
+def test_a_camera_states_how_well_its_intrinsics_are_known(client):
+    """The optional ``sigma`` of the intrinsics (focal length relative, principal point px) is kept as
+    given; without it none is stored and the engine takes its default."""
+    from app.vision.intrinsics import DEFAULT_INTRINSICS_SIGMA, intrinsics_sigma
+
+    r = client.post("/api/v1/cameras", json={"name": "known", "intrinsics": {**INTR, "sigma": {"f_rel": 0.001,
+                                                                                             "c_px": 0.8}}})
+    assert r.status_code == 201, r.text
+    assert r.json()["intrinsics"]["sigma"] == {"f_rel": 0.001, "c_px": 0.8}
+    assert intrinsics_sigma(r.json()["intrinsics"]) == (0.001, 0.8, 0.8)
+    plain = client.post("/api/v1/cameras", json={"name": "plain", "intrinsics": INTR}).json()
+    assert "sigma" not in plain["intrinsics"] and intrinsics_sigma(plain["intrinsics"]) == DEFAULT_INTRINSICS_SIGMA
+
+
 @pytest.mark.parametrize("body, detail", [
     ({"name": "x", "intrinsics": {**INTR, "K": [[1, 0], [0, 1]]}}, "K must be 3x3"),
+    ({"name": "x", "intrinsics": {**INTR, "sigma": {"f_rel": -0.01, "c_px": 2}}}, "sigma.f_rel"),
     ({"name": "x", "source": {"kind": "carrier-pigeon"}}, "source"),
     ({"name": ""}, "name"),
 ])

@@ -91,9 +91,10 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
     keep_pose : ``T_table_obj -> bool``: where the object can be at all (a vise's moving jaw on its
         guide); aligned starts and fine fits elsewhere are dropped before they compete (the local
         search around a start slides onto any edges within its reach)
-    table_covariance : ``(cov, centroid_table_mm)`` of the table pose
-        (:class:`app.vision.fiducials.TablePose`): its error enters the stated sigma
-        (:func:`.uncertainty.table_covariance`); None: ``T_cam_table`` is taken as exact
+    table_covariance : ``(cov, centroid_table_mm[, intrinsics jacobian, intrinsics sigma])`` of the
+        table pose (:meth:`app.vision.fiducials.TablePose.frame_error`): its error, and the
+        intrinsics', enter the stated sigma (:func:`.uncertainty.table_covariance`); None:
+        ``T_cam_table`` and ``K`` are taken as exact
 
     The pose is fitted lying flat (x, y, rotation about the table normal; height on unknown risers),
     then once more in 6 DoF with the contact prior (maximum a-posteriori): that is the pose returned,
@@ -196,7 +197,7 @@ class LocateContext:
     min_contrast: float
     hull_obj: np.ndarray
     clamp_faces: tuple = ()
-    table_cov: tuple | None = None      # (6x6, centroid) of the table pose, see locate_object
+    table_cov: tuple | None = None      # (6x6, centroid[, intrinsics jacobian, sigma]), see locate_object
     px_per_mm: float = 1.0
     _sub_fine: np.ndarray | None = field(default=None, repr=False)
     _unexplained: dict = field(default_factory=dict, repr=False)

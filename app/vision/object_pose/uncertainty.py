@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from app.geometry.model_edges import PreparedModel, project_points_px
 from app.geometry.transforms import inv, transform_points
+from app.vision.intrinsics import INTRINSICS_STEPS, moved_intrinsics
 from app.vision.object_pose.clamping import side_gaps
 from app.vision.object_pose.pose_params import perturb
 
@@ -134,9 +135,10 @@ def covariance(info: dict, K, dist, T_cam_table, data_scale: float = 1.0) -> tup
 
 
 def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, centroid_table_mm,
-                     data_scale: float = 1.0) -> np.ndarray:
-    """6x6 covariance (as :func:`covariance`: about the part's centre, table axes) that the table
-    pose's own error gives the fitted pose.
+                     k_jac: np.ndarray | None = None, k_sigma=None, data_scale: float = 1.0) -> np.ndarray:
+    """6x6 covariance (as :func:`covariance`: about the part's centre, table axes) that the frame's
+    error gives the fitted pose: the table pose's own, and the intrinsics' (``k_sigma``, with
+    ``k_jac``, how the table pose moves with them: :class:`app.vision.fiducials.TablePose`).
 
     The part is fitted in the image and expressed in the table frame found from the markers: an
     error of that frame (``table_cov``, :class:`app.vision.fiducials.TablePose`'s 6x6 of rotation
@@ -146,7 +148,12 @@ def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, ce
     surface as the frame says). Shared by every object in the picture, it is not in the edge
     residuals' scatter, so no calibration of those covers it: with 2 markers the frame alone put
     devset setup_014's part 0.39 mm off in x. Zero where the fit has no solution or no table
-    covariance is known."""
+    covariance is known.
+
+    Intrinsics off by ``dk`` (focal length relative, cx, cy px) move the table pose by ``k_jac dk``
+    and every projected edge directly; the residuals' change ``M_k`` moves the pose by ``B_k dk``
+    as above. Told intrinsics 0.4 % and 3 px off, the devset's parts were 3-6 stated sigma off, some
+    passing the gate, until this term entered."""
     S = np.asarray(table_cov, float)
     if "sol" not in info or S.shape != (6, 6):
         return np.zeros((6, 6))
@@ -169,9 +176,19 @@ def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, ce
     P = _prior_information(info, p)
     if P is not None:
         H = H + P
-    B = -np.linalg.pinv(H) @ (Ji.T @ M) / s2
+    Hinv = np.linalg.pinv(H)
+    B = -Hinv @ (Ji.T @ M) / s2
     cov = np.zeros((6, 6))
     cov[np.ix_(free, free)] = B @ S @ B.T
+    if k_jac is not None and k_sigma is not None:
+        Mk = np.zeros((int(use.sum()), 3))
+        for k, h in enumerate(INTRINSICS_STEPS):
+            e = np.asarray(k_jac, float)[:, k] * h
+            Mk[:, k] = (_raw(info, p, moved_intrinsics(K, k, h), dist, T_cam_table @ _table_error(e, c))[use]
+                        - _raw(info, p, moved_intrinsics(K, k, -h), dist, T_cam_table @ _table_error(-e, c))[use]
+                        ) / (2 * h) * sw
+        Bk = -Hinv @ (Ji.T @ Mk) / s2
+        cov[np.ix_(free, free)] += Bk @ np.diag(np.asarray(k_sigma, float) ** 2) @ Bk.T
     return cov
 
 

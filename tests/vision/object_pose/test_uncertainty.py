@@ -117,3 +117,28 @@ def test_a_part_held_on_the_table_follows_its_frame_in_height_and_tilt():
     assert np.sqrt(C_held[2, 2]) < 0.01
     assert np.all(table_covariance(held_info, K, None, T_cam_table, np.zeros((6, 6)), np.zeros(3)) == 0)
     assert np.all(np.isinf(table_covariance(held_info, K, None, T_cam_table, np.full((6, 6), np.nan), np.zeros(3))))
+
+
+def test_intrinsics_off_move_the_part_as_the_refit_says():
+    """A part fitted with a focal length 0.4 % off (and the table pose moved as its jacobian says)
+    lands where the intrinsics term's linear map puts it: refitted in all six axes under the moved
+    intrinsics, the pose change ``d`` gives the term ``d d^T`` for a sigma along that one direction;
+    no sigma, no term."""
+    from scipy.optimize import least_squares
+
+    from app.vision.intrinsics import moved_intrinsics
+    from app.vision.object_pose.uncertainty import _raw, _table_error, table_covariance
+
+    info, K, T_cam_table = _edge_fit_info(noise_px=0.0)
+    centroid = np.array([100.0, 100.0, 0.0])
+    k_jac = np.array([[1e-3, 0, 0], [-2e-3, 0, 0], [5e-4, 0, 0], [40.0, 0, 0], [-25.0, 0, 0], [60.0, 0, 0]])
+    df = 0.004
+    T_told = T_cam_table @ _table_error(k_jac[:, 0] * df, centroid)
+    K_told = moved_intrinsics(K, 0, df)
+    d = least_squares(lambda p: _raw(info, p, K_told, None, T_told), np.zeros(6), x_scale=[0.1] * 3 + [1e-3] * 3,
+                      xtol=1e-14, ftol=1e-14).x
+    assert np.linalg.norm(d[:3]) > 0.05                     # the move is real, not numerical noise
+    S0 = np.zeros((6, 6))
+    C = table_covariance(info, K, None, T_cam_table, S0, centroid, k_jac, (df, 0.0, 0.0))
+    np.testing.assert_allclose(C, np.outer(d, d), rtol=0.05, atol=1e-6)
+    assert np.all(table_covariance(info, K, None, T_cam_table, S0, centroid, k_jac, None) == 0)
