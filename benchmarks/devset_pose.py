@@ -82,13 +82,42 @@ def scenes(family: str = "setup") -> list[dict]:
 # --perturb: the image degraded before the engine sees it (a stress test of the refusals and the sigma
 # on pictures rougher than the devset's; deterministic per scene)
 PERTURB = ""
-PERTURBATIONS = ("jpeg60", "blur", "resample", "linear", "noise", "dark", "blur_noise", "dark_noise", "calib")
+PERTURBATIONS = ("jpeg60", "blur", "resample", "linear", "noise", "dark", "blur_noise", "dark_noise", "calib",
+                 "chips", "layout")
+# ``layout``: the markers as a shop places them, told as designed: each one off its layout position by
+# N(0, LAYOUT_MM) per axis in the table plane and turned by N(0, LAYOUT_DEG), its printed size off by
+# N(0, LAYOUT_SCALE) (a printer's scaling); the engine is told the layout, the image shows them as placed
+LAYOUT_MM = 0.2
+LAYOUT_DEG = 0.2
+LAYOUT_SCALE = 0.002
+# ``chips``: CHIPS_N chips and coolant spots strewn over the picture (2-7 px polygons, any grey), as a
+# table after machining shows them: edges that belong to nothing in the library
+CHIPS_N = 1500
 # ``calib``: the image as rendered, the engine told slightly wrong intrinsics, as a real calibration is
 # wrong: focal length off by N(0, CALIB_F_REL) (both axes alike), principal point by N(0, CALIB_C_PX) px
 # per axis. Careful calibrations of the same camera differ by 0.1-1 % in f and 1-5 px in c (BENCHMARKS.md,
 # "Calibration on real image sets": 0.5 % and 1.0 % between our corner window and OpenCV's sample).
 CALIB_F_REL = 0.004
 CALIB_C_PX = 3.0
+
+
+def told_layout(layout: dict, kind: str, seed: int) -> dict:
+    """The marker layout the engine is told under ``kind``: for ``layout`` the markers where the image
+    shows them are told where they were designed, i.e. the told layout is the true one moved back by
+    each marker's placement error (the image stays as rendered)."""
+    if kind != "layout":
+        return layout
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3000 + seed)
+    markers = []
+    for m in layout["markers"]:
+        T = np.array(m["T_table_marker"], float)
+        T[:3, :3] = T[:3, :3] @ Rotation.from_euler("z", LAYOUT_DEG * rng.standard_normal(), degrees=True).as_matrix()
+        T[:2, 3] += LAYOUT_MM * rng.standard_normal(2)          # turned about its own centre, moved
+        markers.append({**m, "T_table_marker": T.tolist(),
+                        "size_mm": float(m["size_mm"]) * (1.0 + LAYOUT_SCALE * rng.standard_normal())})
+    return {**layout, "markers": markers}
 
 
 def told_intrinsics(K, kind: str, seed: int):
@@ -113,11 +142,26 @@ def perturbed(image, kind: str, seed: int):
     ``linear`` encoded without gamma (``255 * L``: many machine-vision cameras' default), read by an
     engine that assumes the usual 2.2; ``noise`` read noise (sigma 4 grey levels); ``dark`` every grey
     level scaled by 0.45 (under-exposed: fewer grey levels per edge); ``blur_noise`` and ``dark_noise``
-    both; ``calib`` leaves the image as it is (:func:`told_intrinsics` changes what the engine is told)."""
+    both; ``calib`` and ``layout`` leave the image as it is (:func:`told_intrinsics` and
+    :func:`told_layout` change what the engine is told);
+    ``chips`` strews :data:`CHIPS_N` small polygons of random grey over it (chips and coolant spots)."""
     import cv2
 
-    if kind == "calib":
+    if kind in ("calib", "layout"):
         return image
+    if kind == "chips":
+        rng = np.random.default_rng(2000 + seed)
+        out = image.copy()
+        h, w = out.shape[:2]
+        for _ in range(CHIPS_N):
+            c = rng.uniform([0, 0], [w, h])
+            n = int(rng.integers(3, 7))
+            r = rng.uniform(1.0, 3.5, n)
+            a = np.sort(rng.uniform(0, 2 * np.pi, n))
+            poly = np.round(c + np.column_stack([r * np.cos(a), r * np.sin(a)])).astype(np.int32)
+            grey = int(rng.integers(10, 250))
+            cv2.fillPoly(out, [poly], (grey,) * (out.shape[2] if out.ndim == 3 else 1))
+        return out
     if kind == "jpeg60":
         _, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 60])
         return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
@@ -155,6 +199,7 @@ def run_scene(entry: dict, method: str) -> dict:
     if PERTURB:
         image = perturbed(image, PERTURB, seed=int(entry.get("index", 0)))
     K_told = told_intrinsics(sc.K, PERTURB, seed=int(entry.get("index", 0)))
+    layout_told = told_layout(sc.layout, PERTURB, seed=int(entry.get("index", 0)))
     wp = sc.workpiece
     mesh = wp["mesh_obj"] if "mesh_obj" in wp else trimesh.load(DEVSET / wp["mesh"], force="mesh")
     cands = [Candidate(wp["name"], mesh, kind="workpiece")]
@@ -176,7 +221,7 @@ def run_scene(entry: dict, method: str) -> dict:
     prep_ms = (time.perf_counter() - t) * 1e3
     t, cpu = time.perf_counter(), time.process_time()
     try:
-        res = localize(image, K_told, sc.dist, sc.layout, cands, table_model=sc.table_candidate, **kw)
+        res = localize(image, K_told, sc.dist, layout_told, cands, table_model=sc.table_candidate, **kw)
         err = None
     except Exception as e:  # noqa: BLE001 - a crash is a result here, reported as such
         res, err = None, f"{type(e).__name__}: {e}"
