@@ -248,3 +248,43 @@ def test_the_intrinsics_jacobian_predicts_the_pose_under_other_intrinsics(scenes
     assert np.linalg.norm(moved[3:]) > 0.5                       # the move is well above the noise
     for part in (slice(0, 3), slice(3, 6)):                      # rotation (rad), shift (mm)
         np.testing.assert_allclose(predicted[part], moved[part], atol=0.1 * np.abs(moved[part]).max())
+
+
+def test_at_least_keeps_the_larger_covariance_in_every_direction():
+    from app.vision.fiducials import at_least
+
+    np.testing.assert_allclose(at_least(np.eye(2), np.diag([4.0, 0.25])), np.diag([4.0, 1.0]), atol=1e-12)
+    R = np.array([[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]])
+    C = R @ np.diag([9.0, 1.0]) @ R.T
+    np.testing.assert_allclose(at_least(C, 0.5 * C), C, atol=1e-12)      # smaller everywhere: unchanged
+    np.testing.assert_allclose(at_least(C, 2.0 * C), 2.0 * C, atol=1e-12)
+
+
+def test_markers_placed_off_their_layout_widen_the_table_sigma(scenes, monkeypatch):
+    """Each marker glued 0.3 mm and 0.3 deg off where the layout says: every point of a marker shares
+    its error, so the least-squares covariance (the points' scatter about their own marker) is far
+    too small; the spread of the poses fitted without one marker at a time covers the error."""
+    import app.vision.fiducials as fiducials
+    from scipy.spatial.transform import Rotation
+
+    sc, r = scenes[0]
+    rng = np.random.default_rng(5)
+    told = {**sc.table_layout, "markers": []}
+    for m in sc.table_layout["markers"]:
+        T = np.array(m["T_table_marker"], float)
+        T[:3, :3] = T[:3, :3] @ Rotation.from_euler("z", 0.3 * rng.standard_normal(), degrees=True).as_matrix()
+        T[:2, 3] += 0.3 * rng.standard_normal(2)
+        told["markers"].append({**m, "T_table_marker": T.tolist()})
+
+    def shift_at_centroid(res):
+        c = res.centroid_table_mm
+        return (inv(r.truth["T_cam_table"]) @ res.T_cam_table @ np.append(c, 1))[:3] - c
+
+    res = locate_table(r.image, sc.K, sc.dist, told, intrinsics_sigma=None)
+    assert len(res.ids_used) >= fiducials.MIN_JACKKNIFE_MARKERS
+    d = shift_at_centroid(res)
+    assert np.all(np.abs(d) <= 3 * res.sigma_xyz_mm), (d, res.sigma_xyz_mm)
+    monkeypatch.setattr(fiducials, "MIN_JACKKNIFE_MARKERS", 99)
+    plain = locate_table(r.image, sc.K, sc.dist, told, intrinsics_sigma=None)
+    np.testing.assert_allclose(shift_at_centroid(plain), d, atol=1e-9)            # the same pose
+    assert np.any(np.abs(d) > 3 * plain.sigma_xyz_mm), (d, plain.sigma_xyz_mm)
