@@ -308,19 +308,54 @@ def table_obj_summary(result: dict) -> list[dict]:
 
 # ------------------------------------------------------------------------------ review: offset, adjust, confirm
 def uncertainty_check(obj: LocatedObject, max_sigma_mm: float, max_sigma_deg: float) -> tuple[bool, str]:
-    """Pass/fail of one object's 1-sigma against the tolerances, with the reason when it fails."""
+    """Pass/fail of one object's 1-sigma against the tolerances, with the reason when it fails: the
+    axes over their tolerance and, where one source makes most of the worst one's variance, which
+    (:func:`sigma_source`) and what would help."""
     s = obj.sigma
-    worst = []
-    for k in ("x_mm", "y_mm", "z_mm"):
+    worst, over = [], []                       # the reasons; (excess ratio, covariance index) per axis
+    for i, k in enumerate(("x_mm", "y_mm", "z_mm")):
         v = s.get(k)
         if v is None or not np.isfinite(v):
             worst.append(f"{k[0]} unknown")
         elif v > max_sigma_mm:
             worst.append(f"{k[0]} ±{v:.3f} mm > {max_sigma_mm} mm")
+            over.append((v / max_sigma_mm, i))
     rz = s.get("rz_deg")
     if rz is not None and np.isfinite(rz) and rz > max_sigma_deg:
         worst.append(f"C ±{rz:.3f}° > {max_sigma_deg}°")
-    return (not worst, "; ".join(worst))
+        over.append((rz / max_sigma_deg, 5))
+    why = "; ".join(worst)
+    if over:
+        why += sigma_source(obj, max(over)[1])
+    return (not worst, why)
+
+
+# What a sigma too large to pass is mostly made of, and what would make it smaller
+SIGMA_SOURCES = {
+    "intrinsics": ("the camera's calibration", "if its intrinsics are known better than their stated sigma "
+                   "(0.4 % and 3 px where none is stated), state it in the camera; else calibrate it with more views"),
+    "table": ("the table's markers", "get more of them into view, spread over the table"),
+    "image": ("the part's own edges in the picture", "a closer, sharper or less hidden view"),
+}
+
+
+def sigma_source(obj: LocatedObject, index: int) -> str:
+    """``; mostly <source> (N % of its variance): <advice>`` for the covariance axis ``index`` (0-2 x,
+    y, z mm; 5 rz) when one of the result's shares (``cov6_intrinsics``, the rest of ``cov6_table``,
+    the rest of ``cov6``: the image fit) makes more than half of it; else ""."""
+    extra = obj.model_extra or {}
+    try:
+        total = float(np.asarray(extra["cov6"], float)[index, index])
+        k = float(np.asarray(extra.get("cov6_intrinsics") or np.zeros((6, 6)), float)[index, index])
+        frame = float(np.asarray(extra.get("cov6_table") or np.zeros((6, 6)), float)[index, index])
+    except (KeyError, TypeError, ValueError, IndexError):
+        return ""
+    if not (np.isfinite(total) and total > 0):
+        return ""
+    shares = {"intrinsics": k, "table": frame - k, "image": total - frame}
+    name, v = max(shares.items(), key=lambda t: t[1])
+    what, advice = SIGMA_SOURCES[name]
+    return f"; mostly {what} ({100 * v / total:.0f} % of its variance): {advice}" if v > 0.5 * total else ""
 
 
 def proposed_offset(result: SetupResult, T_machine_table: list, max_tilt: Limit,

@@ -327,6 +327,10 @@ def test_intrinsics_off_by_a_calibration_error_stay_within_the_stated_sigma():
     res, obj, err = _run("setup_010", K=K)
     assert res.ok and np.linalg.norm(err[:3]) > 0.1, err           # the intrinsics do move the part
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
+    # its share is in the result apart (the gate's reason names it when it is most of a sigma)
+    C_k, C_frame = np.diag(obj["cov6_intrinsics"]), np.diag(obj["cov6_table"])
+    assert np.all(C_k[:3] > 0) and np.all(C_k <= C_frame + 1e-12)
     _, exact, err_exact = _run("setup_010", K=K, intrinsics_sigma=None)
     np.testing.assert_allclose(err_exact, err, atol=1e-9)            # the same fit, another sigma
     assert not _within_3_sigma(exact, err_exact), (err_exact, exact["sigma"])
+    assert np.all(np.asarray(exact["cov6_intrinsics"]) == 0)

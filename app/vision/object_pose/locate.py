@@ -50,7 +50,7 @@ from app.vision.object_pose.uncertainty import (
     hull_points,
     origin_sigma,
     prior_offsets,
-    table_covariance,
+    frame_covariances,
     unknown_height_covariance,
 )
 from app.vision.object_pose.verify import same_up_to_symmetry, unexplained_edges
@@ -834,9 +834,10 @@ def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, di
     cov, inl, rms = cov6_full if info is info6 else covariance(info, K, dist, ctx.T_cam_table, data_scale=o.sigma_scale)
     if cf.conflict:
         cov = cov + unknown_height_covariance(T_table_obj, model, ctx.T_cam_table, o.riser_sigma_mm)
-    cov_table = np.zeros((6, 6))
+    cov_table, cov_k = np.zeros((6, 6)), np.zeros((6, 6))
     if ctx.table_cov is not None:           # the frame the pose is given in is itself measured
-        cov_table = table_covariance(info, K, dist, ctx.T_cam_table, *ctx.table_cov, data_scale=o.sigma_scale)
+        cov_table, cov_k = frame_covariances(info, K, dist, ctx.T_cam_table, *ctx.table_cov, data_scale=o.sigma_scale)
+        cov_table = cov_table + cov_k
     cov_o, sigma = origin_sigma(cov + cov_table, T_table_obj, model)
     if "sol" not in info6 or cf.conflict:     # height and tilt not measured, only assumed
         sigma.update(z_mm=float("nan"), rx_deg=float("nan"), ry_deg=float("nan"))
@@ -879,5 +880,6 @@ def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, di
         margin=float(rv.margin), runner_up_score=float(rv.runner),
         distinctiveness=distinct_drop, covariance=cov_o,
         table_covariance=origin_sigma(cov_table, T_table_obj, model)[0],
+        intrinsics_covariance=origin_sigma(cov_k, T_table_obj, model)[0],
         equivalent_poses=datum.equivalent, datum_ambiguous=datum.ambiguous, datum_note=datum.note,
         flags=tuple(flags), timings_ms=dict(ctx.timings))

@@ -68,6 +68,9 @@ class ObjectPose:
     # the table pose's share of ``covariance`` (shared by every object in the picture: what one object
     # is known to relative to another, a part to its vise's jaw, leaves it out)
     table_covariance: np.ndarray | None = None
+    # the intrinsics' share of ``table_covariance`` (the camera's calibration: what a sigma too large to
+    # pass may owe to it)
+    intrinsics_covariance: np.ndarray | None = None
     photo: dict | None = None  # a photo model's match (app/vision/photo_model/): edge IoU, unexplained edges
 
     def __bool__(self) -> bool:
@@ -100,6 +103,8 @@ class ObjectPose:
             "cov6": None if self.covariance is None else np.where(np.isfinite(self.covariance), self.covariance, 0.0).tolist(),
             "cov6_table": None if self.table_covariance is None else
             np.where(np.isfinite(self.table_covariance), self.table_covariance, 0.0).tolist(),
+            "cov6_intrinsics": None if self.intrinsics_covariance is None else
+            np.where(np.isfinite(self.intrinsics_covariance), self.intrinsics_covariance, 0.0).tolist(),
             "margin": None if not np.isfinite(self.margin) else self.margin,
             "runner_up_score": None if not np.isfinite(self.runner_up_score) else self.runner_up_score,
             "distinctiveness": self.distinctiveness,

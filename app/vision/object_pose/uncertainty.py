@@ -136,9 +136,19 @@ def covariance(info: dict, K, dist, T_cam_table, data_scale: float = 1.0) -> tup
 
 def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, centroid_table_mm,
                      k_jac: np.ndarray | None = None, k_sigma=None, data_scale: float = 1.0) -> np.ndarray:
-    """6x6 covariance (as :func:`covariance`: about the part's centre, table axes) that the frame's
-    error gives the fitted pose: the table pose's own, and the intrinsics' (``k_sigma``, with
-    ``k_jac``, how the table pose moves with them: :class:`app.vision.fiducials.TablePose`).
+    """The sum of :func:`frame_covariances`: what the frame the pose is given in adds to its sigma."""
+    return sum(frame_covariances(info, K, dist, T_cam_table, table_cov, centroid_table_mm, k_jac, k_sigma,
+                                 data_scale))
+
+
+def frame_covariances(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, centroid_table_mm,
+                      k_jac: np.ndarray | None = None, k_sigma=None,
+                      data_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(table's share, intrinsics' share): the 6x6 covariances (as :func:`covariance`: about the part's
+    centre, table axes) that the frame's error gives the fitted pose: the table pose's own, and the
+    intrinsics' (``k_sigma``, with ``k_jac``, how the table pose moves with them:
+    :class:`app.vision.fiducials.TablePose`). Apart, so that a sigma too large to pass can say what
+    makes it so.
 
     The part is fitted in the image and expressed in the table frame found from the markers: an
     error of that frame (``table_cov``, :class:`app.vision.fiducials.TablePose`'s 6x6 of rotation
@@ -156,9 +166,9 @@ def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, ce
     passing the gate, until this term entered."""
     S = np.asarray(table_cov, float)
     if "sol" not in info or S.shape != (6, 6):
-        return np.zeros((6, 6))
+        return np.zeros((6, 6)), np.zeros((6, 6))
     if not np.all(np.isfinite(S)):          # the table's pose is not known to any sigma
-        return np.full((6, 6), np.inf)
+        return np.full((6, 6), np.inf), np.zeros((6, 6))
     free = info["free"]
     p, r, inl, J = _linearised(info, K, dist, T_cam_table)
     use, sw = _used(info, r, inl)
@@ -180,6 +190,7 @@ def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, ce
     B = -Hinv @ (Ji.T @ M) / s2
     cov = np.zeros((6, 6))
     cov[np.ix_(free, free)] = B @ S @ B.T
+    cov_k = np.zeros((6, 6))
     if k_jac is not None and k_sigma is not None:
         Mk = np.zeros((int(use.sum()), 3))
         for k, h in enumerate(INTRINSICS_STEPS):
@@ -188,8 +199,8 @@ def table_covariance(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, ce
                         - _raw(info, p, moved_intrinsics(K, k, -h), dist, T_cam_table @ _table_error(-e, c))[use]
                         ) / (2 * h) * sw
         Bk = -Hinv @ (Ji.T @ Mk) / s2
-        cov[np.ix_(free, free)] += Bk @ np.diag(np.asarray(k_sigma, float) ** 2) @ Bk.T
-    return cov
+        cov_k[np.ix_(free, free)] = Bk @ np.diag(np.asarray(k_sigma, float) ** 2) @ Bk.T
+    return cov, cov_k
 
 
 def _table_error(e: np.ndarray, centroid: np.ndarray) -> np.ndarray:
