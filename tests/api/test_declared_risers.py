@@ -27,8 +27,10 @@ def flange_on_parallels():
 
 def test_part_on_hidden_parallels_named_in_the_setup_stands_on_them(client, flange_on_parallels):
     sc, shape, jpg = flange_on_parallels
+    # the camera states how well its calibration is known (it is exact here; 0.2 % and 1.5 px stated)
     cam = client.post("/api/v1/cameras", json={"name": "riser cam", "intrinsics": {
-        "width": shape[1], "height": shape[0], "K": sc.K.tolist(), "dist": sc.dist.tolist()}})
+        "width": shape[1], "height": shape[0], "K": sc.K.tolist(), "dist": sc.dist.tolist(),
+        "sigma": {"f_rel": 0.002, "c_px": 1.5}}})
     assert cam.status_code == 201, cam.text
     models = {m["key"]: m["id"] for m in client.get("/api/v1/models", params={"limit": 200}).json()["data"]}
     machine = client.post("/api/v1/machines", json={
@@ -49,3 +51,7 @@ def test_part_on_hidden_parallels_named_in_the_setup_stands_on_them(client, flan
     assert part["riser_mm"] == 25.0
     T, truth = np.asarray(part["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"])
     assert np.linalg.norm(T[:3, 3] - truth[:3, 3]) < 0.3, (T[:3, 3], truth[:3, 3])
+    # the stated calibration sigma reached the engine: the table says so, the part's sigma holds its share
+    assert setup["result"]["table"]["intrinsics_sigma"] == {"f_rel": 0.002, "cx_px": 1.5, "cy_px": 1.5}
+    C_k, C_frame = np.diag(part["cov6_intrinsics"]), np.diag(part["cov6_table"])
+    assert np.all(C_k[:3] > 0) and np.all(C_k <= C_frame + 1e-12)
