@@ -124,13 +124,13 @@ def told_intrinsics(K, kind: str, seed: int):
     """The intrinsics the engine is told under ``kind`` (``K`` itself unless ``calib``)."""
     if kind != "calib":
         return K
+    from app.vision.intrinsics import moved_intrinsics
+
     rng = np.random.default_rng(1000 + seed)
-    f, dc = 1.0 + CALIB_F_REL * rng.standard_normal(), CALIB_C_PX * rng.standard_normal(2)
-    K2 = np.array(K, float)
-    K2[0, 0] *= f
-    K2[1, 1] *= f
-    K2[:2, 2] += dc
-    return K2
+    df, dc = CALIB_F_REL * rng.standard_normal(), CALIB_C_PX * rng.standard_normal(2)
+    return moved_intrinsics(moved_intrinsics(moved_intrinsics(K, 0, df), 1, dc[0]), 2, dc[1])
+
+
 GAMMA = 2.2     # the devset's encoding gamma (every scene's ``sensor.gamma``)
 
 

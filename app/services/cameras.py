@@ -34,10 +34,8 @@ def validate_intrinsics(intrinsics: dict | None) -> dict | None:
     if intrinsics is None:
         return None
     try:
-        out = parse_intrinsics(intrinsics).model_dump()
-        if out.get("sigma") is None:       # absent: the engine's default, stored as absent
-            out.pop("sigma", None)
-        return out
+        # an absent sigma (the engine's default) is stored as absent
+        return parse_intrinsics(intrinsics).model_dump(exclude_none=True)
     except ValueError as exc:
         raise Invalid(str(exc)) from None
 

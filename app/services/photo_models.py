@@ -58,7 +58,8 @@ def table_view(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dict,
                what: str) -> pm.View:
     """One picture as :class:`app.vision.photo_model.View`: the table located by its markers, the
     table's own edges and the printed labels masked. 422 with the reason when the markers fail."""
-    tp = locate_table(image, K, dist, layout)
+    # a photo model's sigma takes the table pose's covariance only (View.of): no intrinsics jacobian
+    tp = locate_table(image, K, dist, layout, intrinsics_sigma=None)
     if not tp:
         raise Invalid(f"{what}: {tp.reason}", code="table_not_found")
     known = [(table, np.eye(4))] if table is not None else []

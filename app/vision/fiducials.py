@@ -446,6 +446,19 @@ def _frame_step(T: np.ndarray, T2: np.ndarray, centroid: np.ndarray) -> np.ndarr
     return np.concatenate([Rotation.from_matrix(R).as_rotvec(), E[:3, 3] - centroid + R @ centroid])
 
 
+def _refit(K, T: np.ndarray, obj: dict, img: dict, edges: dict | None, ids: list, centroid: np.ndarray,
+           min_sigma_px: float, ideal=lambda q: q) -> np.ndarray:
+    """The final fit (on the border points ``edges``, or on the corners ``img`` where it was a
+    corner fit) redone from ``T`` over the markers ``ids``, its ideal pixels mapped by ``ideal``:
+    ``e`` of the new pose (:func:`_frame_step`)."""
+    if edges is not None:
+        T2 = _refine_edges(K, T, obj, {i: [ideal(q) for q in edges[i]] for i in ids}, centroid, min_sigma_px)[0]
+    else:
+        T2 = _refine(K, np.concatenate([obj[i] for i in ids]), np.concatenate([ideal(img[i]) for i in ids]), T,
+                     centroid, min_sigma_px)[0]
+    return _frame_step(T, T2, centroid)
+
+
 def _intrinsics_jacobian(K, dist, T: np.ndarray, obj: dict, img: dict, edges: dict | None, use: list,
                          centroid: np.ndarray, min_sigma_px: float) -> np.ndarray:
     """(6, 3): the final fit redone with the intrinsics moved (central differences along
@@ -457,17 +470,8 @@ def _intrinsics_jacobian(K, dist, T: np.ndarray, obj: dict, img: dict, edges: di
         e = []
         for step in (h, -h):
             K2 = moved_intrinsics(K, k, step)
-
-            def ideal(q):
-                return undistort_px(distort_px(q, K, dist), K2, dist)
-
-            if edges is not None:
-                T2 = _refine_edges(K2, T, obj, {i: [ideal(q) for q in edges[i]] for i in use}, centroid,
-                                   min_sigma_px)[0]
-            else:
-                T2 = _refine(K2, np.concatenate([obj[i] for i in use]),
-                             np.concatenate([ideal(img[i]) for i in use]), T, centroid, min_sigma_px)[0]
-            e.append(_frame_step(T, T2, centroid))
+            e.append(_refit(K2, T, obj, img, edges, use, centroid, min_sigma_px,
+                            ideal=lambda q, K2=K2: undistort_px(distort_px(q, K, dist), K2, dist)))
         cols.append((e[0] - e[1]) / (2.0 * h))
     return np.column_stack(cols)
 
@@ -487,15 +491,7 @@ def _marker_jackknife(K, T: np.ndarray, obj: dict, img: dict, edges: dict | None
     n = len(use)
     if n < MIN_JACKKNIFE_MARKERS:
         return None
-    e = []
-    for i in use:
-        rest = [j for j in use if j != i]
-        if edges is not None:
-            Ti = _refine_edges(K, T, obj, {j: edges[j] for j in rest}, centroid, min_sigma_px)[0]
-        else:
-            Ti = _refine(K, np.concatenate([obj[j] for j in rest]), np.concatenate([img[j] for j in rest]), T,
-                         centroid, min_sigma_px)[0]
-        e.append(_frame_step(T, Ti, centroid))
+    e = [_refit(K, T, obj, img, edges, [j for j in use if j != i], centroid, min_sigma_px) for i in use]
     d = np.asarray(e) - np.mean(e, axis=0)
     return (n - 1) / n * d.T @ d
 
@@ -679,16 +675,15 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
         warnings.append(f"only {len(use)} markers used: the pose is weaker, see sigma; an error of a marker's "
                         f"own placement is not measured with fewer than {MIN_JACKKNIFE_MARKERS}")
     # the geometry was judged on the points' own scatter; what the markers share is stated on top
-    jack = _marker_jackknife(K, T, obj, img, edges if fit_used == "edges" else None, use, centroid,
-                             min_corner_sigma_px)
+    final_edges = edges if fit_used == "edges" else None
+    jack = _marker_jackknife(K, T, obj, img, final_edges, use, centroid, min_corner_sigma_px)
     if jack is not None:
         cov = at_least(cov, jack)
         sig = np.sqrt(np.clip(np.diag(cov), 0, None))
         sigma_rot_deg, sigma_xyz = np.degrees(sig[:3]), sig[3:]
     k_jac = None
     if intrinsics_sigma is not None:
-        k_jac = _intrinsics_jacobian(K, dist, T, obj, img, edges if fit_used == "edges" else None, use, centroid,
-                                     min_corner_sigma_px)
+        k_jac = _intrinsics_jacobian(K, dist, T, obj, img, final_edges, use, centroid, min_corner_sigma_px)
     rms = float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
     return TablePose(
         T_cam_table=T, ids_used=tuple(sorted(use)), ids_rejected=tuple(rejected), rms_px=rms,
