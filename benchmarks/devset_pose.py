@@ -101,10 +101,16 @@ CALIB_F_REL = 0.004
 CALIB_C_PX = 3.0
 
 
+# --placement: the markers' placement sigma the told layout declares (None: it declares none)
+PLACEMENT = None
+
+
 def told_layout(layout: dict, kind: str, seed: int) -> dict:
     """The marker layout the engine is told under ``kind``: for ``layout`` the markers where the image
     shows them are told where they were designed, i.e. the told layout is the true one moved back by
     each marker's placement error (the image stays as rendered)."""
+    if PLACEMENT is not None:
+        layout = {**layout, "placement_sigma": dict(zip(("position_mm", "rotation_deg", "scale_rel"), PLACEMENT))}
     if kind != "layout":
         return layout
     from scipy.spatial.transform import Rotation
@@ -439,7 +445,13 @@ def main(argv=None) -> int:
     ap.add_argument("--n-synth", type=int, default=24)
     ap.add_argument("--perturb", default="", choices=("",) + PERTURBATIONS,
                     help="degrade each image first (a stress test; see perturbed())")
+    ap.add_argument("--placement", default="",
+                    help="MM,DEG,REL: the layout declares its markers' placement sigma (position mm, "
+                         "rotation deg, print scale relative); default: it declares none")
     a = ap.parse_args(argv)
+    if a.placement:
+        global PLACEMENT
+        PLACEMENT = tuple(float(v) for v in a.placement.split(","))   # read by the workers, which fork after this
     if a.perturb:
         global PERTURB
         PERTURB = a.perturb      # read by the workers, which fork after this

@@ -334,7 +334,8 @@ def uncertainty_check(obj: LocatedObject, max_sigma_mm: float, max_sigma_deg: fl
 SIGMA_SOURCES = {
     "intrinsics": ("the camera's calibration", "if its intrinsics are known better than their stated sigma "
                    "(0.4 % and 3 px where none is stated), state it in the camera; else calibrate it with more views"),
-    "table": ("the table's markers", "get more of them into view, spread over the table"),
+    "table": ("the table's markers", "get more of them into view, spread over the table (and if they were "
+              "surveyed better than the layout's placement_sigma says, state it there)"),
     "image": ("the part's own edges in the picture", "a closer, sharper or less hidden view"),
 }
 

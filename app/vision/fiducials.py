@@ -34,7 +34,11 @@ Pipeline of :func:`locate_table`:
    effective sample size), expressed as a rotation about the table axes (deg) and a shift of the
    table at the centroid of the used markers along the table axes (mm). With 2-3 markers, or
    markers on one line, the rotation about that line is weak and this shows in ``sigma_rot_deg``;
-   beyond ``max_sigma_rot_deg`` the result is a failure. With 4 or more markers the covariance is
+   beyond ``max_sigma_rot_deg`` the result is a failure. The markers' placement against their
+   layout (the layout's ``placement_sigma``, position, turn and print scale) is then added through
+   the fit's linear response (:func:`_placement_jacobian`): with 2-3 markers nothing else can show
+   it, and a marker 0.1 mm off moves a 3-marker table up to 0.6 mm along the line of sight (the
+   table's distance rests on the markers' spread). With 4 or more markers the covariance is
    then held at least as large as the jackknife over the markers (the fit redone without each in
    turn): a marker placed, turned or printed off its layout moves all its points alike, which the
    points' scatter does not show (the devset told its layout 0.2 mm / 0.2 deg / 0.2 % off: NEES per
@@ -55,6 +59,7 @@ from scipy.ndimage import map_coordinates
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from app.geometry.fiducial_layout import PLACEMENT_KEYS, placement_sigma
 from app.geometry.transforms import check_pose, make_pose, rvec_tvec_to_pose, transform_points
 from app.vision.encoding_gamma import GammaReading, read_encoding_gamma
 from app.vision.intrinsics import (
@@ -95,6 +100,10 @@ class TablePose:
     intrinsics_jacobian : (6, 3) how the pose (as ``covariance``) moves per unit of the intrinsics
         (focal length relative, cx px, cy px; :func:`app.vision.intrinsics.moved_intrinsics`);
         intrinsics_sigma : their 1-sigma (None: the intrinsics are taken as exact).
+    placement_sigma : the markers' placement error (position mm, rotation deg, scale relative) that
+        ``covariance`` holds; placement_jacobian : (6, 4 n + 1) how the pose
+        moves per unit of each placement parameter, markers in ``ids_used`` order
+        (:func:`_placement_jacobian`).
     """
 
     T_cam_table: np.ndarray
@@ -116,6 +125,8 @@ class TablePose:
     gamma_reading: GammaReading | None = None  # what the markers said about it
     intrinsics_jacobian: np.ndarray | None = None
     intrinsics_sigma: tuple[float, float, float] | None = None
+    placement_sigma: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    placement_jacobian: np.ndarray | None = None
 
     def __bool__(self) -> bool:
         return True
@@ -142,6 +153,7 @@ class TablePose:
             "warnings": list(self.warnings),
             "gamma": self.gamma,
             "gamma_reading": self.gamma_reading.to_dict() if self.gamma_reading is not None else None,
+            "placement_sigma": dict(zip(PLACEMENT_KEYS, self.placement_sigma)),
             "intrinsics_sigma": None if self.intrinsics_sigma is None else
             {"f_rel": self.intrinsics_sigma[0], "cx_px": self.intrinsics_sigma[1], "cy_px": self.intrinsics_sigma[2]},
         }
@@ -367,6 +379,44 @@ def _solve_pnp(K, obj_pts: np.ndarray, img_pts: np.ndarray) -> np.ndarray | None
     return rvec_tvec_to_pose(rvec, tvec) if ok else None
 
 
+def _about(T0: np.ndarray, centroid: np.ndarray):
+    """``pose(x)``: ``T0`` turned by the rotation vector ``x[:3]`` (rad) about ``centroid`` and
+    shifted by ``x[3:6]`` (mm), table axes; the fits' parameters."""
+    Tc = make_pose(None, centroid)
+    return lambda x: T0 @ Tc @ make_pose(Rotation.from_rotvec(x[:3]).as_matrix(), x[3:6])
+
+
+def _corner_residuals(K, T0: np.ndarray, obj_pts: np.ndarray, img_pts: np.ndarray, centroid: np.ndarray):
+    """``res(x)``: reprojection error (ideal px, flat) of the corners ``obj_pts`` (table mm) against
+    ``img_pts`` at ``pose(x)`` (:func:`_about`); and ``pose``."""
+    pose = _about(T0, centroid)
+    obj_c = obj_pts - centroid                         # points relative to the centroid
+    return (lambda x: (_project_ideal(K, pose(x), obj_c) - img_pts).ravel()), pose
+
+
+def _edge_residuals(K, T0: np.ndarray, obj: dict[int, np.ndarray], edges: dict[int, list[np.ndarray]],
+                    centroid: np.ndarray):
+    """``res(x)``: signed distance (ideal px) of each border point in ``edges`` to the projected side
+    of its marker (corners ``obj``, table mm) at ``pose(x)`` (:func:`_about`); ``pose``; and each
+    point's side (4 * marker index + side)."""
+    pose = _about(T0, centroid)
+    ids = sorted(edges)
+    P = np.concatenate([obj[i] for i in ids]) - centroid          # (4n, 3) corners
+    pts = np.concatenate([e for i in ids for e in edges[i]])       # (M, 2)
+    side = np.concatenate([np.full(len(e), 4 * k + j) for k, i in enumerate(ids)
+                           for j, e in enumerate(edges[i])])
+    nxt = (side // 4) * 4 + (side % 4 + 1) % 4
+
+    def res(x):
+        uv = _project_ideal(K, pose(x), P)
+        a, b = uv[side], uv[nxt]
+        d = b - a
+        n = np.column_stack([-d[:, 1], d[:, 0]]) / np.linalg.norm(d, axis=1, keepdims=True)
+        return np.einsum("ij,ij->i", pts - a, n)
+
+    return res, pose, side
+
+
 def _refine(K, obj_pts: np.ndarray, img_pts: np.ndarray, T0: np.ndarray,
             centroid: np.ndarray, min_sigma_px: float):
     """LM refinement of the corner reprojection error about the markers' centroid.
@@ -374,16 +424,8 @@ def _refine(K, obj_pts: np.ndarray, img_pts: np.ndarray, T0: np.ndarray,
     Returns T, residuals (N, 2) ideal px, covariance (6, 6) of (rotation about the table axes in
     rad, shift along the table axes in mm at ``centroid``): ``s^2 (J^T J)^-1``.
     """
-    Tc = make_pose(None, centroid)
     Tc_inv = make_pose(None, -centroid)
-    obj_c = obj_pts - centroid                         # points relative to the centroid
-
-    def pose(x):
-        return T0 @ Tc @ make_pose(Rotation.from_rotvec(x[:3]).as_matrix(), x[3:6])
-
-    def res(x):
-        return (_project_ideal(K, pose(x), obj_c) - img_pts).ravel()
-
+    res, pose = _corner_residuals(K, T0, obj_pts, img_pts, centroid)
     sol = least_squares(res, np.zeros(6), method="lm", x_scale=np.array([1e-3] * 3 + [0.1] * 3))
     r = sol.fun.reshape(-1, 2)
     s2 = max(float(np.sum(r ** 2)) / max(r.size - 6, 1), min_sigma_px ** 2)
@@ -402,25 +444,8 @@ def _refine_edges(K, T0: np.ndarray, obj: dict[int, np.ndarray], edges: dict[int
     directions), so a corner fit overstates the uncertainty; edge points are close to independent.
     Returns T, covariance (6, 6) (rotation about table axes rad, shift mm at ``centroid``), RMS px.
     """
-    Tc = make_pose(None, centroid)
     Tc_inv = make_pose(None, -centroid)
-    ids = sorted(edges)
-    P = np.concatenate([obj[i] for i in ids]) - centroid          # (4n, 3) corners
-    pts = np.concatenate([e for i in ids for e in edges[i]])       # (M, 2)
-    side = np.concatenate([np.full(len(e), 4 * k + j) for k, i in enumerate(ids)
-                           for j, e in enumerate(edges[i])])
-    nxt = (side // 4) * 4 + (side % 4 + 1) % 4
-
-    def pose(x):
-        return T0 @ Tc @ make_pose(Rotation.from_rotvec(x[:3]).as_matrix(), x[3:6])
-
-    def res(x):
-        uv = _project_ideal(K, pose(x), P)
-        a, b = uv[side], uv[nxt]
-        d = b - a
-        n = np.column_stack([-d[:, 1], d[:, 0]]) / np.linalg.norm(d, axis=1, keepdims=True)
-        return np.einsum("ij,ij->i", pts - a, n)
-
+    res, pose, side = _edge_residuals(K, T0, obj, edges, centroid)
     sol = least_squares(res, np.zeros(6), method="lm", x_scale=np.array([1e-3] * 3 + [0.1] * 3))
     r = sol.fun
     s2 = max(float(np.sum(r ** 2)) / max(r.size - 6, 1), min_sigma_px ** 2)
@@ -476,6 +501,57 @@ def _intrinsics_jacobian(K, dist, T: np.ndarray, obj: dict, img: dict, edges: di
     return np.column_stack(cols)
 
 
+def _placement_jacobian(K, T: np.ndarray, obj: dict, img: dict, edges: dict | None, use: list,
+                        centroid: np.ndarray) -> np.ndarray:
+    """(6, 4 n + 1): how the final fit's pose (as its covariance: rotation rad, shift mm at
+    ``centroid``) moves per unit of each used marker's placement, linearised at the fit: per marker
+    its centre along the table's x, y, z (mm) and its turn about its normal (rad), and last the
+    print's scale (relative, all markers about their centres). Gauss-Newton: ``-J_x^+ J_p`` of the
+    final fit's residuals."""
+    def residuals(o: dict):
+        if edges is not None:
+            return _edge_residuals(K, T, o, {i: edges[i] for i in use}, centroid)[0](np.zeros(6))
+        return _corner_residuals(K, T, np.concatenate([o[i] for i in use]),
+                                 np.concatenate([img[i] for i in use]), centroid)[0](np.zeros(6))
+
+    if edges is not None:
+        res = _edge_residuals(K, T, obj, {i: edges[i] for i in use}, centroid)[0]
+    else:
+        res = _corner_residuals(K, T, np.concatenate([obj[i] for i in use]),
+                                np.concatenate([img[i] for i in use]), centroid)[0]
+    steps = np.array([1e-6] * 3 + [1e-4] * 3)
+    J_x = np.column_stack([(res(h * e) - res(-h * e)) / (2 * h) for h, e in zip(steps, np.eye(6))])
+    moves: list[dict[int, np.ndarray]] = []        # per parameter: the corners' motion per unit
+    scale = {}
+    for i in use:
+        c = obj[i]
+        m = c.mean(axis=0)
+        ex, ey = c[1] - c[0], c[0] - c[3]
+        ez = np.cross(ex, ey)
+        ez /= np.linalg.norm(ez)
+        moves += [{i: np.tile(a, (4, 1))} for a in np.eye(3)]
+        moves.append({i: np.cross(ez, c - m)})
+        scale[i] = c - m
+    moves.append(scale)
+    h = 1e-3
+    cols = []
+    for mv in moves:
+        plus = {i: obj[i] + h * mv[i] if i in mv else obj[i] for i in use}
+        minus = {i: obj[i] - h * mv[i] if i in mv else obj[i] for i in use}
+        cols.append((residuals(plus) - residuals(minus)) / (2 * h))
+    return -np.linalg.lstsq(J_x, np.column_stack(cols), rcond=None)[0]
+
+
+def placement_covariance(jacobian: np.ndarray, sigma: tuple[float, float, float]) -> np.ndarray:
+    """(6, 6) table pose covariance from the markers' placement error ``sigma`` (position mm,
+    rotation deg, scale relative; :func:`app.geometry.fiducial_layout.placement_sigma`) through
+    :func:`_placement_jacobian`."""
+    pos, rot, sc = sigma
+    n = (jacobian.shape[1] - 1) // 4
+    var = np.r_[np.tile([pos ** 2] * 3 + [np.radians(rot) ** 2], n), sc ** 2]
+    return (jacobian * var) @ jacobian.T
+
+
 # With at least this many markers in the final fit, the fit is redone leaving out one marker at a time
 # and the spread of those poses (the jackknife) bounds the stated covariance from below: an error a
 # marker's points share (placed 0.2 mm off, turned, printed at another scale) is not in the scatter of
@@ -513,7 +589,8 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
                  max_sigma_rot_deg: float = 0.5, gamma: float = 2.2,
                  refine_corners: bool = True, min_corner_sigma_px: float = 0.02,
                  final_fit: str = "edges", read_gamma: bool = True,
-                 intrinsics_sigma: tuple | None = DEFAULT_INTRINSICS_SIGMA) -> TablePose | TableFailure:
+                 intrinsics_sigma: tuple | None = DEFAULT_INTRINSICS_SIGMA,
+                 markers_placed: tuple | None = None) -> TablePose | TableFailure:
     """Locate the table from its markers in one raw (distorted) image.
 
     Parameters
@@ -535,6 +612,10 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
     intrinsics_sigma : 1-sigma of the focal length (relative) and of cx, cy (px): with it the pose's
         dependence on them is measured (``TablePose.intrinsics_jacobian``) for the objects' sigma;
         None takes ``K`` as exact.
+    markers_placed : 1-sigma of the markers' placement against the layout (position mm, rotation
+        deg, scale relative); None: the layout's ``placement_sigma``
+        (:func:`app.geometry.fiducial_layout.placement_sigma`).
+        (0, 0, 0) takes the layout as exact.
 
     Returns :class:`TablePose` or :class:`TableFailure` (falsy, with ``reason``).
     """
@@ -674,13 +755,17 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
     if len(use) <= 3:
         warnings.append(f"only {len(use)} markers used: the pose is weaker, see sigma; an error of a marker's "
                         f"own placement is not measured with fewer than {MIN_JACKKNIFE_MARKERS}")
-    # the geometry was judged on the points' own scatter; what the markers share is stated on top
+    # the geometry was judged on the points' own scatter; what the markers share is stated on top:
+    # their placement as the layout declares it, and at least what their disagreement shows
     final_edges = edges if fit_used == "edges" else None
+    placed = placement_sigma(layout) if markers_placed is None else tuple(float(v) for v in markers_placed)
+    p_jac = _placement_jacobian(K, T, obj, img, final_edges, sorted(use), centroid)
+    cov = cov + placement_covariance(p_jac, placed)
     jack = _marker_jackknife(K, T, obj, img, final_edges, use, centroid, min_corner_sigma_px)
     if jack is not None:
         cov = at_least(cov, jack)
-        sig = np.sqrt(np.clip(np.diag(cov), 0, None))
-        sigma_rot_deg, sigma_xyz = np.degrees(sig[:3]), sig[3:]
+    sig = np.sqrt(np.clip(np.diag(cov), 0, None))
+    sigma_rot_deg, sigma_xyz = np.degrees(sig[:3]), sig[3:]
     k_jac = None
     if intrinsics_sigma is not None:
         k_jac = _intrinsics_jacobian(K, dist, T, obj, img, final_edges, use, centroid, min_corner_sigma_px)
@@ -691,7 +776,7 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
         residual_px=per, sigma_xyz_mm=sigma_xyz, sigma_rot_deg=sigma_rot_deg, covariance=cov,
         centroid_table_mm=centroid, corners_px={i: distort_px(img[i], K, dist) for i in use},
         time_ms=ms(), warnings=tuple(warnings), K=K, dist=dist, gamma=gamma, gamma_reading=reading,
-        intrinsics_jacobian=k_jac,
+        intrinsics_jacobian=k_jac, placement_sigma=placed, placement_jacobian=p_jac,
         intrinsics_sigma=None if intrinsics_sigma is None else tuple(float(v) for v in intrinsics_sigma))
 
 

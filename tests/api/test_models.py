@@ -98,6 +98,12 @@ def test_table_with_fiducials(client):
                fiducials=json.dumps(layout))
     assert r.status_code == 201, r.text
     assert r.json()["revision"]["fiducials"]["markers"][0]["id"] == 1
+    # how well the markers sit where the layout says is part of the layout, kept as stated
+    r = upload(client, box_bytes("stl", (800, 400, 60)), "table.stl", kind="table", name="t2",
+               fiducials=json.dumps({**layout, "placement_sigma": {"position_mm": 0.15, "scale_rel": 0.002}}))
+    assert r.status_code == 201, r.text
+    assert r.json()["revision"]["fiducials"]["placement_sigma"] == {"position_mm": 0.15, "rotation_deg": None,
+                                                                     "scale_rel": 0.002}
 
 
 @pytest.mark.parametrize(
@@ -116,9 +122,12 @@ def test_table_with_fiducials(client):
         (box_bytes("stl"), "box.stl", {"T_obj_datum": "[[1,0],[0,1]]"}, 422, "T_obj_datum: expected shape (4, 4)"),
         (box_bytes("stl"), "box.stl", {"fiducials": '{"dictionary": "DICT_5X5_100", "markers": []}'}, 422,
          "fiducial layout invalid"),
+        (box_bytes("stl"), "box.stl", {"fiducials": json.dumps({"dictionary": "DICT_5X5_100", "markers": [
+            {"id": 1, "size_mm": 40, "T_table_marker": np.eye(4).tolist()}], "placement_sigma": {"rotation_deg": -1}})},
+         422, "placement_sigma.rotation_deg"),
     ],
     ids=["junk", "junk-step", "empty", "no-faces", "flat", "unknown-format", "too-big", "too-many-faces", "kind", "units",
-         "datum", "layout"],
+         "datum", "layout", "placement-sigma"],
 )
 def test_rejections_say_why(client, data, filename, form, status, detail):
     body = {"kind": "workpiece", "name": "bad", "units": "mm", **form}

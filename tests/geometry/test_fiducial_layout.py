@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from app.geometry.fiducial_layout import parse_layout
+from app.geometry.fiducial_layout import DEFAULT_PLACEMENT_SIGMA, parse_layout, placement_sigma
 from app.geometry.transforms import pose_from_xyz_euler
 
 
@@ -25,8 +25,19 @@ def test_corners_follow_the_design_convention():
         (layout(size_mm=-1), "greater than 0"),
         (layout(T_table_marker=np.diag([1, 1, 2, 1]).tolist()), "T_table_marker of marker 7: rotation not orthonormal"),
         ({"dictionary": "DICT_5X5_100", "markers": [layout()["markers"][0]] * 2}, "marker id 7 appears twice"),
+        ({**layout(), "placement_sigma": {"position_mm": -0.1}},
+         "at placement_sigma.position_mm: .*greater than or equal to 0"),
+        ({**layout(), "placement_sigma": {"scale_rel": 0.5}}, "at placement_sigma.scale_rel"),
     ],
 )
 def test_bad_layouts_are_refused_with_a_reason(data, match):
     with pytest.raises(ValueError, match=match):
         parse_layout(data)
+
+
+def test_a_declared_placement_sigma_is_kept_and_missing_values_take_the_default():
+    """The layout says how well its markers sit where it puts them; what it leaves out is the default,
+    and a stored layout (``model_dump``) still says it."""
+    stored = parse_layout({**layout(), "placement_sigma": {"position_mm": 0.2}}).model_dump()
+    assert placement_sigma(stored) == (0.2, DEFAULT_PLACEMENT_SIGMA[1], DEFAULT_PLACEMENT_SIGMA[2])
+    assert placement_sigma(parse_layout(layout()).model_dump()) == DEFAULT_PLACEMENT_SIGMA

@@ -136,6 +136,51 @@ def test_part_held_between_the_located_jaws():
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
 
 
+def _layout_off(layout: dict, seed: int, mm: float, deg: float) -> dict:
+    """``layout`` as a shop may hold it: every marker ``mm`` off (x, y, z) and turned ``deg`` (normal
+    draws) from where it really sits."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    markers = []
+    for m in layout["markers"]:
+        T = np.array(m["T_table_marker"], float)
+        T[:3, :3] = T[:3, :3] @ Rotation.from_euler("z", deg * rng.standard_normal(), degrees=True).as_matrix()
+        T[:3, 3] += mm * rng.standard_normal(3)
+        markers.append({**m, "T_table_marker": T.tolist()})
+    return {**layout, "markers": markers}
+
+
+def test_three_markers_off_their_layout_are_covered_by_the_declared_placement_sigma():
+    """setup_027 shows 3 markers: no jackknife can show their placement error, and markers 0.1 mm off
+    move the table's distance (which rests on their spread) by several times what the points' scatter
+    admits. The layout's declared ``placement_sigma`` covers it, in the table's and in the part's sigma;
+    a layout taken as exact does not."""
+    from app.vision.fiducials import locate_table
+
+    sc, image, wp = _scene("setup_027")
+    T_true = np.asarray(sc.gt["T_cam_table"])
+    covered, plain = 0, 0
+    for seed in range(6):
+        told = _layout_off(sc.layout, seed, 0.1, 0.1)
+        declared = locate_table(image, sc.K, sc.dist, {**told, "placement_sigma": {"position_mm": 0.1,
+                                                                                   "rotation_deg": 0.1}})
+        exact = locate_table(image, sc.K, sc.dist, told, markers_placed=(0, 0, 0))
+        assert len(declared.ids_used) == 3 and declared.placement_sigma[:2] == (0.1, 0.1)
+        c = declared.centroid_table_mm
+        d = (np.linalg.inv(T_true) @ declared.T_cam_table @ np.append(c, 1))[:3] - c
+        covered += bool(np.all(np.abs(d) <= 3 * declared.sigma_xyz_mm))
+        plain += bool(np.all(np.abs(d) <= 3 * exact.sigma_xyz_mm))
+    assert covered == 6 and plain <= 2, (covered, plain)
+    # and the part's sigma carries it
+    told = _layout_off(sc.layout, 1, 0.1, 0.1)
+    res = localize(image, sc.K, sc.dist, {**told, "placement_sigma": {"position_mm": 0.1, "rotation_deg": 0.1}},
+                   [wp] + sc.fixture_candidates, table_model=sc.table_candidate, chain=True)
+    obj = next(o for o in res.objects if o["kind"] == "workpiece")
+    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"]), wp.prepare())
+    assert _within_3_sigma(obj, err), (err, obj["sigma"])
+
+
 def _fixtures(scene_id: str):
     """The vise alone (body, then its moving jaw along the devset's declared guide)."""
     sc, image, _ = _scene(scene_id)

@@ -280,11 +280,57 @@ def test_markers_placed_off_their_layout_widen_the_table_sigma(scenes, monkeypat
         c = res.centroid_table_mm
         return (inv(r.truth["T_cam_table"]) @ res.T_cam_table @ np.append(c, 1))[:3] - c
 
-    res = locate_table(r.image, sc.K, sc.dist, told, intrinsics_sigma=None)
+    res = locate_table(r.image, sc.K, sc.dist, told, intrinsics_sigma=None, markers_placed=(0, 0, 0))
     assert len(res.ids_used) >= fiducials.MIN_JACKKNIFE_MARKERS
     d = shift_at_centroid(res)
     assert np.all(np.abs(d) <= 3 * res.sigma_xyz_mm), (d, res.sigma_xyz_mm)
     monkeypatch.setattr(fiducials, "MIN_JACKKNIFE_MARKERS", 99)
-    plain = locate_table(r.image, sc.K, sc.dist, told, intrinsics_sigma=None)
+    plain = locate_table(r.image, sc.K, sc.dist, told, intrinsics_sigma=None, markers_placed=(0, 0, 0))
     np.testing.assert_allclose(shift_at_centroid(plain), d, atol=1e-9)            # the same pose
     assert np.any(np.abs(d) > 3 * plain.sigma_xyz_mm), (d, plain.sigma_xyz_mm)
+
+
+def _moved_layout(layout: dict, ids, rng, mm: float, deg: float, scale: float = 0.0) -> dict:
+    """``layout`` with the markers ``ids`` moved ``mm`` (x, y, z) and turned ``deg`` (normal draws), and
+    every marker printed ``scale`` larger."""
+    from scipy.spatial.transform import Rotation
+
+    out = {**layout, "markers": []}
+    for m in layout["markers"]:
+        T = np.array(m["T_table_marker"], float)
+        if m["id"] in ids:
+            T[:3, :3] = T[:3, :3] @ Rotation.from_euler("z", deg * rng.standard_normal(), degrees=True).as_matrix()
+            T[:3, 3] += mm * rng.standard_normal(3)
+        out["markers"].append({**m, "T_table_marker": T.tolist(), "size_mm": m["size_mm"] * (1 + scale)})
+    return out
+
+
+def test_the_placement_jacobian_predicts_the_pose_with_markers_off_their_layout(scenes):
+    """Told a layout whose markers are moved, turned and printed larger, the table is found where
+    ``placement_jacobian`` says, to a tenth of the move."""
+    from scipy.spatial.transform import Rotation
+
+    from app.vision.fiducials import _frame_step
+
+    sc, r = scenes[1]
+    res = locate_table(r.image, sc.K, sc.dist, sc.table_layout, intrinsics_sigma=None, markers_placed=(0, 0, 0))
+    n = len(res.ids_used)
+    assert res.placement_jacobian.shape == (6, 4 * n + 1)
+    first = res.ids_used[0]
+    told = _moved_layout(sc.table_layout, (), None, 0, 0, scale=0.003)
+    for m in told["markers"]:
+        if m["id"] == first:
+            T = np.array(m["T_table_marker"])
+            T[:3, 3] += [0.3, -0.2, 0.1]
+            T[:3, :3] = Rotation.from_euler("z", 0.3, degrees=True).as_matrix() @ T[:3, :3]
+            m["T_table_marker"] = T.tolist()
+    moved = _frame_step(res.T_cam_table, locate_table(r.image, sc.K, sc.dist, told, intrinsics_sigma=None,
+                                                      markers_placed=(0, 0, 0)).T_cam_table, res.centroid_table_mm)
+    p = np.zeros(4 * n + 1)
+    p[:4] = [0.3, -0.2, 0.1, np.radians(0.3)]
+    p[-1] = 0.003
+    predicted = res.placement_jacobian @ p
+    assert np.linalg.norm(moved[3:]) > 0.05                       # the move is well above the noise
+    for part in (slice(0, 3), slice(3, 6)):                       # rotation (rad), shift (mm)
+        np.testing.assert_allclose(predicted[part], moved[part], atol=0.1 * np.abs(moved[part]).max())
+
