@@ -136,6 +136,30 @@ def test_part_held_between_the_located_jaws():
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
 
 
+def test_a_small_part_deep_between_the_jaws_is_found_where_the_jaws_hold_it(monkeypatch):
+    """setup_034: a 34 mm angle block on parallels deep in the vise, its sides partly hidden by the
+    jaws. The plane search does not rank its place (the nearest start it keeps is 4 mm and 10 deg
+    off); the poses the jaws allow, scored directly, find it."""
+    res, obj, err = _run("setup_034")
+    assert res.ok, res.reason
+    assert obj["chain"][1:] == ["vise_body seat", "table"], obj["chain"]
+    assert np.linalg.norm(err[:3]) < 0.1 and np.nanmax(np.abs(err[3:])) < 0.05, err
+    assert _within_3_sigma(obj, err), (err, obj["sigma"])
+    # without the jaws' starts it is not found
+    monkeypatch.setattr(locate_module, "clamped_starts", lambda *a, **k: [])
+    res, = _run_refused("setup_034")
+    assert "angle_block not found" in res
+
+
+def _run_refused(scene_id: str) -> tuple[str]:
+    """The workpiece's refusal reason for the scene through the chain."""
+    sc, image, wp = _scene(scene_id)
+    res = localize(image, sc.K, sc.dist, sc.layout, [wp] + sc.fixture_candidates, table_model=sc.table_candidate,
+                   chain=True)
+    assert not any(o["kind"] == "workpiece" for o in res.objects)
+    return (next(n["reason"] for n in res.not_found if n.get("name") == wp.name),)
+
+
 def _layout_off(layout: dict, seed: int, mm: float, deg: float) -> dict:
     """``layout`` as a shop may hold it: every marker ``mm`` off (x, y, z) and turned ``deg`` (normal
     draws) from where it really sits."""

@@ -27,6 +27,7 @@ from app.vision.object_pose.edge_image import (
     mask_table_regions,
     prepare_image,
 )
+from app.vision.object_pose.clamped_starts import clamped_starts
 from app.vision.object_pose.options import LocateOptions
 from app.vision.object_pose.planar_fit import sample_subset
 from app.vision.object_pose.pose_params import FREE_6DOF, perturb3
@@ -35,6 +36,7 @@ from app.vision.object_pose.results import ObjectFailure, ObjectPose
 from app.vision.object_pose.search import (
     Hyp,
     find_starts,
+    searched_states,
     settle_start,
     starts_from_poses,
     turned_over,
@@ -347,11 +349,22 @@ def _find(ctx: LocateContext, start_poses, table_extent_xy, start_capture=None):
     o, half = ctx.opts, 0.5 * ctx.model.diameter_mm
     extent = None if table_extent_xy is None else (table_extent_xy[0] - half, table_extent_xy[1] + half,
                                                    table_extent_xy[2] - half, table_extent_xy[3] + half)
-    return find_starts(ctx.eimg, ctx.K, ctx.dist, ctx.T_cam_table, ctx.model, height_offsets_mm=o.height_offsets_mm,
-                       resting_states=o.resting_states, n_starts=o.n_starts, n_planar=o.n_planar,
-                       n_coarse=o.n_coarse, coarse_step_max_mm=o.coarse_step_max_mm,
-                       max_edges=o.max_edges, rng=np.random.default_rng(o.seed), timings=ctx.timings,
-                       table_extent_xy=extent)
+    found = find_starts(ctx.eimg, ctx.K, ctx.dist, ctx.T_cam_table, ctx.model, height_offsets_mm=o.height_offsets_mm,
+                        resting_states=o.resting_states, n_starts=o.n_starts, n_planar=o.n_planar,
+                        n_coarse=o.n_coarse, coarse_step_max_mm=o.coarse_step_max_mm,
+                        max_edges=o.max_edges, rng=np.random.default_rng(o.seed), timings=ctx.timings,
+                        table_extent_xy=extent)
+    if isinstance(found, str) or not ctx.clamp_faces:
+        return found
+    # held between located jaws the part's stance follows them: those few poses, scored directly
+    hyps, px_per_mm = found
+    t = time.perf_counter()
+    heights = sorted({float(h[0] if isinstance(h, tuple) else h) for h in o.height_offsets_mm})
+    held = clamped_starts(ctx.model, ctx.hull_obj, ctx.clamp_faces, heights,
+                          searched_states(ctx.model, o.resting_states), ctx.eimg, ctx.K, ctx.dist,
+                          ctx.T_cam_table, px_per_mm)
+    ctx.timings["clamped_starts"] = (time.perf_counter() - t) * 1e3
+    return sorted(hyps + held, key=lambda h: -h.score), px_per_mm
 
 
 def _distinct(ctx: LocateContext, hyps: list[Hyp]) -> list[Hyp]:
@@ -381,6 +394,8 @@ def _distinct(ctx: LocateContext, hyps: list[Hyp]) -> list[Hyp]:
             groups.setdefault(("state", h.state), h)
             if ctx.on_known_surface(h.T_table_obj):
                 groups.setdefault(("known",), h)
+            if h.source == "clamped":     # held between located jaws: that reading is refined too
+                groups.setdefault(("clamped",), h)
             riser_top = ctx.declared_riser_top(h.T_table_obj)
             if riser_top is not None:   # standing on a declared parallel: that reading is refined too
                 groups.setdefault(("riser", h.state, riser_top), h)

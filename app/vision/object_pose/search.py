@@ -34,6 +34,7 @@ class Hyp:
     score: float = 0.0
     height_mm: float = 0.0
     refined: dict | None = None
+    source: str = "plane"           # "plane": the plane search; "clamped": between located jaws
 
 
 def _edge_rays_table(eimg: EdgeImage, K, dist, T_table_cam, max_edges: int, rng):
@@ -485,6 +486,15 @@ def _intersect(a, b):
     return e if e[1] > e[0] and e[3] > e[2] else None
 
 
+def searched_states(model: PreparedModel, resting_states=None, min_state_probability: float = 0.1) -> list[int]:
+    """The resting states searched: ``resting_states`` if given, else the distinct ones that are the
+    first, at least ``min_state_probability`` likely, or stand the part on its CAD z axis."""
+    if resting_states is not None:
+        return list(resting_states)
+    return [i for i, s in enumerate(model.resting_states)
+            if s.same_as < 0 and (i == 0 or s.probability >= min_state_probability or s.cad_axis)]
+
+
 def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, height_offsets_mm=(0.0,),
             resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10,
             max_edges: int = 60000, rng=None, timings: dict | None = None, table_extent_xy=None,
@@ -526,11 +536,7 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
     extent = _intersect(extent, extent if table_extent_xy is None else table_extent_xy)   # None if empty
     if extent is None:
         return "the image's edges meet the table plane only more than 3 m from the camera"
-    if resting_states is None:
-        states = [i for i, s in enumerate(model.resting_states)
-                  if s.same_as < 0 and (i == 0 or s.probability >= min_state_probability or s.cad_axis)]
-    else:
-        states = list(resting_states)
+    states = searched_states(model, resting_states, min_state_probability)
     hyps: list[Hyp] = []
     scorer = _image_scorer(eimg, K, dist, T_cam_table)
     b_px = coarse_cell_mm(model.diameter_mm, coarse_step_max_mm) / max(px_mm, 1e-9)
