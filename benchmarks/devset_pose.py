@@ -83,7 +83,7 @@ def scenes(family: str = "setup") -> list[dict]:
 # on pictures rougher than the devset's; deterministic per scene)
 PERTURB = ""
 PERTURBATIONS = ("jpeg60", "blur", "resample", "linear", "noise", "dark", "blur_noise", "dark_noise", "calib",
-                 "chips", "layout")
+                 "chips", "layout", "calib_dist")
 # ``layout``: the markers as a shop places them, told as designed: each one off its layout position by
 # N(0, LAYOUT_MM) per axis in the table plane and turned by N(0, LAYOUT_DEG), its printed size off by
 # N(0, LAYOUT_SCALE) (a printer's scaling); the engine is told the layout, the image shows them as placed
@@ -126,9 +126,27 @@ def told_layout(layout: dict, kind: str, seed: int) -> dict:
     return {**layout, "markers": markers}
 
 
+# ``calib_dist``: as ``calib``, and the radial distortion told off as well: k1 moved so that the image
+# corner moves by N(0, DIST_CORNER_PX) px (env DIST_CORNER_PX; calibrations of one real camera differ
+# by 2.8-7.4 px at its corners after the best f / c match: benchmarks/calibration.md)
+DIST_CORNER_PX = float(os.environ.get("DIST_CORNER_PX", 2.0))
+
+
+def told_dist(dist, K, kind: str, seed: int):
+    """The distortion the engine is told under ``kind`` (``dist`` itself unless ``calib_dist``)."""
+    if kind != "calib_dist":
+        return dist
+    rng = np.random.default_rng(4000 + seed)
+    K = np.asarray(K, float)
+    r_c = np.hypot(K[0, 2], K[1, 2]) / K[0, 0]             # the corner's normalised radius
+    out = np.array(dist, float).ravel().copy()
+    out[0] += DIST_CORNER_PX * rng.standard_normal() / (K[0, 0] * r_c ** 3)
+    return out
+
+
 def told_intrinsics(K, kind: str, seed: int):
-    """The intrinsics the engine is told under ``kind`` (``K`` itself unless ``calib``)."""
-    if kind != "calib":
+    """The intrinsics the engine is told under ``kind`` (``K`` itself unless ``calib`` or ``calib_dist``)."""
+    if kind not in ("calib", "calib_dist"):
         return K
     from app.vision.intrinsics import moved_intrinsics
 
@@ -153,7 +171,7 @@ def perturbed(image, kind: str, seed: int):
     ``chips`` strews :data:`CHIPS_N` small polygons of random grey over it (chips and coolant spots)."""
     import cv2
 
-    if kind in ("calib", "layout"):
+    if kind in ("calib", "layout", "calib_dist"):
         return image
     if kind == "chips":
         rng = np.random.default_rng(2000 + seed)
@@ -227,7 +245,8 @@ def run_scene(entry: dict, method: str) -> dict:
     prep_ms = (time.perf_counter() - t) * 1e3
     t, cpu = time.perf_counter(), time.process_time()
     try:
-        res = localize(image, K_told, sc.dist, layout_told, cands, table_model=sc.table_candidate, **kw)
+        res = localize(image, K_told, told_dist(sc.dist, sc.K, PERTURB, seed=int(entry.get("index", 0))), layout_told,
+                       cands, table_model=sc.table_candidate, **kw)
         err = None
     except Exception as e:  # noqa: BLE001 - a crash is a result here, reported as such
         res, err = None, f"{type(e).__name__}: {e}"
