@@ -754,7 +754,8 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
                     f"{max_sigma_rot_deg:.2f} deg); {need} spread over the table")
     if len(use) <= 3:
         warnings.append(f"only {len(use)} markers used: the pose is weaker, see sigma; an error of a marker's "
-                        f"own placement is not measured with fewer than {MIN_JACKKNIFE_MARKERS}")
+                        f"own placement is not measured with fewer than {MIN_JACKKNIFE_MARKERS}: the layout's "
+                        "placement sigma is taken as stated")
     # the geometry was judged on the points' own scatter; what the markers share is stated on top:
     # their placement as the layout declares it, and at least what their disagreement shows
     final_edges = edges if fit_used == "edges" else None

@@ -16,6 +16,7 @@ horizontal, pointing out of its fixture towards the part).
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 
 from app.geometry.model_edges import PreparedModel
 from app.geometry.transforms import make_pose, transform_points
@@ -37,8 +38,8 @@ MIN_SIDE_AREA_MM2 = 20.0
 
 def jaw_openings(faces: tuple[Face, ...] | list[Face], max_gap_mm: float) -> list[tuple[Face, Face, float]]:
     """Pairs of faces that face each other across a gap of at most ``max_gap_mm`` and overlap when
-    seen across it (along the jaws and in height): ``(a, b, gap mm)``, ``a`` first by name then
-    offset (the same pair once)."""
+    seen across it (along the jaws and in height): ``(a, b, gap mm)``, ``a`` the one listed first
+    (each pair once)."""
     out = []
     for i, a in enumerate(faces):
         for b in faces[i + 1:]:
@@ -59,8 +60,6 @@ def jaw_openings(faces: tuple[Face, ...] | list[Face], max_gap_mm: float) -> lis
 def _sides(hull_rest: np.ndarray) -> np.ndarray:
     """Horizontal directions (resting frame, unit, one of each opposite pair) across which the part
     can be held: the normals of its convex hull's vertical facets."""
-    import trimesh
-
     try:
         hull = trimesh.convex.convex_hull(hull_rest)
     except Exception:  # noqa: BLE001 - a flat point set has no hull and no sides to hold
