@@ -32,13 +32,20 @@ OPPOSITE_COS = -0.995
 WIDTH_TOL_MM = 1.5
 #: the faces and the part must share at least this much height and length (mm)
 MIN_OVERLAP_MM = 3.0
+#: a jaw is at least this tall (mm; a vise's jaws are 35 mm, the edges of its ways 8 mm: two of those
+#: facing each other are a slot, not an opening that holds a part)
+JAW_MIN_HEIGHT_MM = 20.0
 #: a side of the part (a direction it can be held across) is a hull facet at least this large (mm^2)
 MIN_SIDE_AREA_MM2 = 20.0
+#: a lone jaw face (no opposite face located) has its foot at least this far above the table (mm;
+#: the fixture's outer walls stand on the table)
+LONE_MIN_Z_MM = 5.0
 
 
 def jaw_openings(faces: tuple[Face, ...] | list[Face], max_gap_mm: float) -> list[tuple[Face, Face, float]]:
     """Pairs of faces that face each other across a gap of at most ``max_gap_mm`` and overlap when
-    seen across it (along the jaws and in height): ``(a, b, gap mm)``, ``a`` the one listed first
+    seen across it (along the jaws by :data:`MIN_OVERLAP_MM`, in height by :data:`JAW_MIN_HEIGHT_MM`):
+    ``(a, b, gap mm)``, ``a`` the one listed first
     (each pair once)."""
     out = []
     for i, a in enumerate(faces):
@@ -52,7 +59,7 @@ def jaw_openings(faces: tuple[Face, ...] | list[Face], max_gap_mm: float) -> lis
             u /= max(np.linalg.norm(u), 1e-12)
             lo_u, hi_u = max((a.pts @ u).min(), (b.pts @ u).min()), min((a.pts @ u).max(), (b.pts @ u).max())
             lo_z, hi_z = max(a.pts[:, 2].min(), b.pts[:, 2].min()), min(a.pts[:, 2].max(), b.pts[:, 2].max())
-            if hi_u - lo_u >= MIN_OVERLAP_MM and hi_z - lo_z >= MIN_OVERLAP_MM:
+            if hi_u - lo_u >= MIN_OVERLAP_MM and hi_z - lo_z >= JAW_MIN_HEIGHT_MM:
                 out.append((a, b, float(gap)))
     return out
 
@@ -74,25 +81,42 @@ def _sides(hull_rest: np.ndarray) -> np.ndarray:
     return np.array(out).reshape(-1, 3)
 
 
+def _holds(faces, max_gap_mm: float) -> list[tuple]:
+    """Where a part can be held: every jaw opening ``(a, gap, lo_u, hi_u, lo_z, hi_z)`` (``u`` along
+    face ``a``, the extents both faces share); where there is none, every lone jaw face (a fixed jaw
+    whose moving jaw was not located) with ``gap`` None: a vertical face at least
+    :data:`JAW_MIN_HEIGHT_MM` tall whose foot stands :data:`LONE_MIN_Z_MM` above the table."""
+    pairs = [(a, b, gap) for a, b, gap in jaw_openings(tuple(faces), max_gap_mm)]
+    if not pairs:
+        pairs = [(f, f, None) for f in faces
+                 if f.pts[:, 2].min() >= LONE_MIN_Z_MM and np.ptp(f.pts[:, 2]) >= JAW_MIN_HEIGHT_MM]
+    out = []
+    for a, b, gap in pairs:
+        u = np.cross([0.0, 0.0, 1.0], a.n)
+        u /= np.linalg.norm(u)
+        out.append((a, gap, max((a.pts @ u).min(), (b.pts @ u).min()), min((a.pts @ u).max(), (b.pts @ u).max()),
+                    max(a.pts[:, 2].min(), b.pts[:, 2].min()), min(a.pts[:, 2].max(), b.pts[:, 2].max())))
+    return out
+
+
 def clamped_poses(model: PreparedModel, hull_obj: np.ndarray, faces, heights_mm, states,
                   step_mm: float) -> list[tuple[int, float, np.ndarray]]:
-    """Every pose the jaw openings in ``faces`` allow the part: per opening, resting state (of
-    ``states``) and side whose width matches the opening within :data:`WIDTH_TOL_MM`, both ways
-    round, at each of ``heights_mm`` where the part's side meets the jaws, against face ``a`` and
-    every ``step_mm`` along the jaws where the part lies within them. ``(state, height, T_table_obj)``."""
+    """Every pose the jaws in ``faces`` allow the part (:func:`_holds`): per opening, resting state
+    (of ``states``) and side whose width matches the opening within :data:`WIDTH_TOL_MM` (against a
+    lone jaw, every side), both ways round, at each of ``heights_mm`` where the part's side meets
+    the jaws, against face ``a`` and every ``step_mm`` along the jaws where the part lies within
+    them. ``(state, height, T_table_obj)``."""
     out = []
-    for a, b, gap in jaw_openings(tuple(faces), float(model.diameter_mm)):
+    for a, gap, lo_u, hi_u, lo_z, hi_z in _holds(faces, float(model.diameter_mm)):
         n = a.n
         u = np.cross([0.0, 0.0, 1.0], n)
         u /= np.linalg.norm(u)
-        lo_u, hi_u = max((a.pts @ u).min(), (b.pts @ u).min()), min((a.pts @ u).max(), (b.pts @ u).max())
-        lo_z, hi_z = max(a.pts[:, 2].min(), b.pts[:, 2].min()), min(a.pts[:, 2].max(), b.pts[:, 2].max())
         phi_n = float(np.arctan2(n[1], n[0]))
         for st in states:
             T_rest = model.resting_states[st].T_rest_obj
             H = transform_points(T_rest, hull_obj)
             for m in _sides(H):
-                if abs(float(np.ptp(H @ m)) - gap) > WIDTH_TOL_MM:
+                if gap is not None and abs(float(np.ptp(H @ m)) - gap) > WIDTH_TOL_MM:
                     continue
                 for sign in (1.0, -1.0):                     # which of the two sides faces a
                     th = phi_n - float(np.arctan2(sign * m[1], sign * m[0]))

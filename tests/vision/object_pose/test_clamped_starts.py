@@ -60,3 +60,26 @@ def test_a_block_between_turned_jaws_touches_both_and_turns_with_them():
     # too wide for the opening every way round: nothing
     wide = prepare_model(_box((0.0, 0.0, 0.0), (34.0, 50.0, 20.0)), name="wide")
     assert clamped_poses(wide, hull_points(wide), faces, [90.0], searched_states(wide), 5.0) == []
+
+
+def test_the_ways_of_a_vise_are_no_opening_and_a_lone_fixed_jaw_still_holds():
+    """Two 8 mm edges facing each other (the vise's ways) are a slot, not jaws. With the moving jaw
+    not located, the fixed jaw alone gives the part's turn and place across it: every side of the
+    block against it, and nothing from the ways or from a wall standing on the table."""
+    ways = fixture_faces(_box((-60.0, -25.0, 62.0), (-40.0, 25.0, 70.0)), np.eye(4), "rail_a") + \
+        fixture_faces(_box((-40.0, -60.0, 62.0), (40.0, -25.0, 70.0)), np.eye(4), "rail_b") + \
+        fixture_faces(_box((-40.0, 25.0, 62.0), (40.0, 60.0, 70.0)), np.eye(4), "rail_c")
+    assert jaw_openings(ways, 100.0) == []
+    fixed = fixture_faces(_box((-20.0, -60.0, 70.0), (0.0, 60.0, 110.0)), np.eye(4), "vise_body")
+    wall = fixture_faces(_box((-200.0, -60.0, 0.0), (-180.0, 60.0, 110.0)), np.eye(4), "wall")
+    block = prepare_model(_box((0.0, 0.0, 0.0), (30.0, 50.0, 20.0)), name="block")
+    hull = hull_points(block)
+    poses = clamped_poses(block, hull, ways + fixed + wall, [90.0], searched_states(block), step_mm=5.0)
+    widths = set()
+    for _, _, T in poses:
+        P = transform_points(T, hull)
+        assert abs(P[:, 0].min() + 180.0) > 1e-6 and abs(P[:, 0].max() + 200.0) > 1e-6   # never against the wall
+        assert abs(P[:, 2].min() - 90.0) < 1e-6
+        if abs(P[:, 0].min()) < 1e-6:                    # in front of the fixed jaw's face x = 0
+            widths.add(round(float(np.ptp(P[:, 0])), 3))
+    assert {30.0, 50.0} <= widths                          # held across either side
