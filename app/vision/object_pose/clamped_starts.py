@@ -7,7 +7,9 @@ plane search (:mod:`.search`) knows none of this and looks everywhere at every t
 deep between the jaws, partly hidden by them, its coarse correlation does not rank the part's cell
 high enough (devset setup_034: the true pose scores best of all in the image, the nearest start the
 search kept was 4 mm and 10 deg away). Here the few poses the jaws allow are scored in the image
-directly (:func:`.search._image_scorer`, exact perspective) and aligned in the table plane.
+directly (:func:`.search._image_scorer`, exact perspective) and aligned in the table plane. Where no
+opening is located (the moving jaw not found), the fixed jaw alone holds the part: its turn and its
+place across the jaw are still given, and any of its sides may face it.
 
 Frames and units: table frame, mm and rad; a face as in :mod:`.clamping` (``n . x = d``, ``n``
 horizontal, pointing out of its fixture towards the part).
@@ -45,8 +47,7 @@ LONE_MIN_Z_MM = 5.0
 def jaw_openings(faces: tuple[Face, ...] | list[Face], max_gap_mm: float) -> list[tuple[Face, Face, float]]:
     """Pairs of faces that face each other across a gap of at most ``max_gap_mm`` and overlap when
     seen across it (along the jaws by :data:`MIN_OVERLAP_MM`, in height by :data:`JAW_MIN_HEIGHT_MM`):
-    ``(a, b, gap mm)``, ``a`` the one listed first
-    (each pair once)."""
+    ``(a, b, gap mm)``, ``a`` the one listed first (each pair once)."""
     out = []
     for i, a in enumerate(faces):
         for b in faces[i + 1:]:
