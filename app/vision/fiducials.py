@@ -509,16 +509,14 @@ def _placement_jacobian(K, T: np.ndarray, obj: dict, img: dict, edges: dict | No
     print's scale (relative, all markers about their centres). Gauss-Newton: ``-J_x^+ J_p`` of the
     final fit's residuals."""
     def residuals(o: dict):
+        """The final fit's residual function with the markers' corners at ``o``."""
         if edges is not None:
-            return _edge_residuals(K, T, o, {i: edges[i] for i in use}, centroid)[0](np.zeros(6))
+            return _edge_residuals(K, T, o, {i: edges[i] for i in use}, centroid)[0]
         return _corner_residuals(K, T, np.concatenate([o[i] for i in use]),
-                                 np.concatenate([img[i] for i in use]), centroid)[0](np.zeros(6))
+                                 np.concatenate([img[i] for i in use]), centroid)[0]
 
-    if edges is not None:
-        res = _edge_residuals(K, T, obj, {i: edges[i] for i in use}, centroid)[0]
-    else:
-        res = _corner_residuals(K, T, np.concatenate([obj[i] for i in use]),
-                                np.concatenate([img[i] for i in use]), centroid)[0]
+    res = residuals(obj)
+    at_fit = np.zeros(6)
     steps = np.array([1e-6] * 3 + [1e-4] * 3)
     J_x = np.column_stack([(res(h * e) - res(-h * e)) / (2 * h) for h, e in zip(steps, np.eye(6))])
     moves: list[dict[int, np.ndarray]] = []        # per parameter: the corners' motion per unit
@@ -538,7 +536,7 @@ def _placement_jacobian(K, T: np.ndarray, obj: dict, img: dict, edges: dict | No
     for mv in moves:
         plus = {i: obj[i] + h * mv[i] if i in mv else obj[i] for i in use}
         minus = {i: obj[i] - h * mv[i] if i in mv else obj[i] for i in use}
-        cols.append((residuals(plus) - residuals(minus)) / (2 * h))
+        cols.append((residuals(plus)(at_fit) - residuals(minus)(at_fit)) / (2 * h))
     return -np.linalg.lstsq(J_x, np.column_stack(cols), rcond=None)[0]
 
 

@@ -108,15 +108,18 @@ def clamped_poses(model: PreparedModel, hull_obj: np.ndarray, faces, heights_mm,
     the jaws, against face ``a`` and every ``step_mm`` along the jaws where the part lies within
     them. ``(state, height, T_table_obj)``."""
     out = []
+    stances = []                                             # per state: its hull and sides, once
+    for st in states:
+        T_rest = model.resting_states[st].T_rest_obj
+        H = transform_points(T_rest, hull_obj)
+        stances.append((st, T_rest, H, _sides(H)))
     for a, gap, lo_u, hi_u, lo_z, hi_z in _holds(faces, float(model.diameter_mm)):
         n = a.n
         u = np.cross([0.0, 0.0, 1.0], n)
         u /= np.linalg.norm(u)
         phi_n = float(np.arctan2(n[1], n[0]))
-        for st in states:
-            T_rest = model.resting_states[st].T_rest_obj
-            H = transform_points(T_rest, hull_obj)
-            for m in _sides(H):
+        for st, T_rest, H, sides in stances:
+            for m in sides:
                 if gap is not None and abs(float(np.ptp(H @ m)) - gap) > WIDTH_TOL_MM:
                     continue
                 for sign in (1.0, -1.0):                     # which of the two sides faces a
@@ -156,17 +159,20 @@ def clamped_starts(model: PreparedModel, hull_obj: np.ndarray, faces, heights_mm
     for k, (st, h, T) in enumerate(poses):
         groups.setdefault((st, h), []).append(k)
     sub = sample_subset(model, px_per_mm, 4.0, 400)
+    templates: dict = {}                 # per state: the template in the resting frame, once
     hyps = []
     for (st, h), ks in groups.items():
-        T_rest = model.resting_states[st].T_rest_obj
-        P = transform_points(T_rest, model.samples_obj[sel])
-        D = model.sample_dir_obj[sel] @ T_rest[:3, :3].T
-        M = [poses[k][2] @ np.linalg.inv(T_rest) for k in ks]    # Trans(x, y, h) @ Rz(theta)
+        if st not in templates:
+            T_rest = model.resting_states[st].T_rest_obj
+            templates[st] = (transform_points(T_rest, model.samples_obj[sel]),
+                             model.sample_dir_obj[sel] @ T_rest[:3, :3].T,
+                             edge_faces_of(model, T_rest, sel), np.linalg.inv(T_rest))
+        P, D, shows, inv_rest = templates[st]
+        M = [poses[k][2] @ inv_rest for k in ks]             # Trans(x, y, h) @ Rz(theta)
         hx = np.array([q[0, 3] for q in M])
         hy = np.array([q[1, 3] for q in M])
         ht = np.array([np.arctan2(q[1, 0], q[0, 0]) for q in M])
-        Pz = P + np.array([0.0, 0.0, h])
-        sc = scorer(hx, hy, ht, Pz, D, np.ones(len(sel)), normals=edge_faces_of(model, T_rest, sel))
+        sc = scorer(hx, hy, ht, P + np.array([0.0, 0.0, h]), D, np.ones(len(sel)), normals=shows)
         for i in np.argsort(-sc)[:n_keep]:
             hyp = Hyp(state=st, T_table_obj=poses[ks[i]][2], votes=float(sc[i]), height_mm=h, source="clamped")
             hyps.append(planar_fit(eimg, model, hyp, T_cam_table, K, dist, sub))

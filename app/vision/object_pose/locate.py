@@ -371,11 +371,11 @@ def _distinct(ctx: LocateContext, hyps: list[Hyp]) -> list[Hyp]:
     """The best ``n_refine`` starts that are different places (near-symmetric alternatives, e.g.
     the part upside down, count as different and compete), and besides them the best start of every
     resting state and the best one on a known surface, where those score at least
-    :data:`RESERVE_SHARE` of the best start, and the jaws' start the image scores best. Aligned scores are not comparable between stances (a
-    part on its side shows other edges than upright) nor between a known surface and a free height
-    (a tool in the spindle fits a pin block lying on its side 100 mm above the table better than
-    the block's own image fits it upright on its parallel): the fine fit, which sees all edges and
-    their occlusion, decides between them."""
+    :data:`RESERVE_SHARE` of the best start, and the jaws' start the image scores best. Aligned
+    scores are not comparable between stances (a part on its side shows other edges than upright)
+    nor between a known surface and a free height (a tool in the spindle fits a pin block lying on
+    its side 100 mm above the table better than the block's own image fits it upright on its
+    parallel): the fine fit, which sees all edges and their occlusion, decides between them."""
     distinct: list[Hyp] = []
 
     def add(h: Hyp) -> None:
