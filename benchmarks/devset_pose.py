@@ -295,7 +295,8 @@ def run_scene(entry: dict, method: str) -> dict:
                    unexplained=obj.get("unexplained_fraction"),
                    held_by=obj.get("held_by"),
                    T_table_obj=obj["T_table_obj"], equivalent_poses=obj.get("equivalent_poses", []),
-                   cov6=obj.get("cov6"), pass_=obj.get("uncertainty_ok"))
+                   cov6=obj.get("cov6"), cov6_table=obj.get("cov6_table"), cov6_intrinsics=obj.get("cov6_intrinsics"),
+                   pass_=obj.get("uncertainty_ok"))
     return row
 
 
