@@ -24,6 +24,7 @@ from app.geometry.model_edges import PreparedModel, project_points_px
 from app.geometry.transforms import check_pose, inv, make_pose, transform_points
 from app.vision.object_pose.edge_image import EdgeImage, nearest_edge_maps
 from app.vision.object_pose.planar_fit import planar_fit, sample_subset
+from app.vision.object_pose.score_kernel import planar_scores
 
 
 @dataclass
@@ -335,12 +336,17 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     return out
 
 
-def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, max_angle_deg: float = 20.0):
+def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, max_angle_deg: float = 20.0,
+                  compiled: bool = True):
     """Score function for many planar poses at once: each pose (x, y, theta) moves template points
     ``P`` (M, 3, resting frame) with directions ``D``; the score is the weighted share of projected
     points within ``tau_px`` of an image edge of compatible direction (soft: 1 - d / tau). With
     ``normals`` (from :func:`edge_faces_of`) only the samples that can show at that pose count, by
-    the rule of :func:`app.geometry.model_edges.visible_edge_samples` without its z-buffer."""
+    the rule of :func:`app.geometry.model_edges.visible_edge_samples` without its z-buffer.
+
+    ``compiled``: the numba loop of :mod:`.score_kernel` (about 10x faster, the same scores to
+    ~1e-15); the numpy code below is its reference, and serves a tilted sensor (14 coefficients with
+    tau_x, tau_y), which the loop does not model."""
     R = T_cam_table[:3, :3]
     t = T_cam_table[:3, 3]
     cos_tol = np.cos(np.radians(max_angle_deg))
@@ -348,6 +354,29 @@ def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, ma
     C = -R.T @ t                                  # camera centre, table frame
 
     W, H = eimg.width, eimg.height
+    dd = np.zeros(0) if dist is None else np.asarray(dist, dtype=float).ravel()
+    if compiled and not (len(dd) == 14 and np.any(dd[12:] != 0)):
+        d12 = np.zeros(12)
+        d12[: min(len(dd), 12)] = dd[:12]
+        flags = (bool(np.any(d12 != 0)), bool(np.any(d12[5:8] != 0)), bool(np.any(d12[8:12] != 0)))
+        Kf = np.ascontiguousarray(K, dtype=float)
+        Rc, tc = np.ascontiguousarray(R, dtype=float), np.ascontiguousarray(t, dtype=float)
+        no_n, no_s = np.zeros((1, 3)), np.zeros(1, bool)
+
+        def score_compiled(hx, hy, ht, P, D, w, normals=None):
+            d_map, cos_map, sin_map = nearest_edge_maps(eimg)
+            f64 = [np.ascontiguousarray(a, dtype=float) for a in (hx, hy, ht, P, D, w)]
+            if normals is None:
+                N0, N1, smooth, w_floor = no_n, no_n, no_s, 0.0
+            else:
+                N0, N1, smooth = (np.ascontiguousarray(a) for a in normals)
+                N0, N1 = N0.astype(float, copy=False), N1.astype(float, copy=False)
+                w_floor = 0.5 * float(f64[5][~smooth].sum()) if (~smooth).any() else 0.5 * float(f64[5].sum())
+            return planar_scores(*f64, N0, N1, smooth.astype(bool, copy=False), normals is not None, w_floor,
+                                 Rc, tc, C, Kf, d12, *flags, d_map, cos_map, sin_map, W, H, float(tau_px),
+                                 float(cos_tol))
+
+        return score_compiled
 
     def score(hx, hy, ht, P, D, w, normals=None):
         # the same arithmetic as written out per pose, on contiguous arrays and with one lookup of

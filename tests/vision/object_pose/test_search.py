@@ -103,27 +103,35 @@ def _bracket_scene():
     return model, T_true, scene, prepare_image(r.image, gamma=scene.gamma)
 
 
-def test_the_batched_image_scorer_gives_each_pose_its_own_score():
-    """Many poses scored at once (the per-image edge maps, contiguous arrays) against the rule
-    written out pose by pose: the same numbers."""
-    from app.vision.object_pose.search import _image_scorer, edge_faces_of
+def _horizontal_template(model, T_true, stride: int):
+    """The plane search's template at the part's true height (its horizontal edge samples, every
+    ``stride``-th), the planar pose moving the resting frame onto the true pose, and the samples'
+    face normals: (M, P, D, normals)."""
+    from app.vision.object_pose.search import edge_faces_of
 
-    model, T_true, scene, eimg = _bracket_scene()
-    state = _state_of(model, T_true)
-    T_rest = model.resting_states[state].T_rest_obj
+    T_rest = model.resting_states[_state_of(model, T_true)].T_rest_obj
     M = T_true @ np.linalg.inv(T_rest)
     P = (model.samples_obj @ T_rest[:3, :3].T + T_rest[:3, 3]) + np.array([0.0, 0.0, M[2, 3]])
     D = model.sample_dir_obj @ T_rest[:3, :3].T
-    sel = np.nonzero(np.abs(D[:, 2]) < 0.3)[0][::7]
-    normals = edge_faces_of(model, T_rest, sel)
-    w = np.where(np.arange(len(sel)) % 3 == 0, 1.0, 0.5)
+    sel = np.nonzero(np.abs(D[:, 2]) < 0.3)[0][::stride]
+    return M, P[sel], D[sel], edge_faces_of(model, T_rest, sel)
+
+
+def test_the_batched_image_scorer_gives_each_pose_its_own_score():
+    """Many poses scored at once (the per-image edge maps, contiguous arrays) against the rule
+    written out pose by pose: the same numbers."""
+    from app.vision.object_pose.search import _image_scorer
+
+    model, T_true, scene, eimg = _bracket_scene()
+    M, P, D, normals = _horizontal_template(model, T_true, 7)
+    w = np.where(np.arange(len(P)) % 3 == 0, 1.0, 0.5)
     rng = np.random.default_rng(3)
     x = M[0, 3] + rng.uniform(-20, 20, 40)
     y = M[1, 3] + rng.uniform(-20, 20, 40)
     th = np.arctan2(M[1, 0], M[0, 0]) + rng.uniform(-0.3, 0.3, 40)
     x[0], y[0], th[0] = M[0, 3], M[1, 3], np.arctan2(M[1, 0], M[0, 0])
-    got = _image_scorer(eimg, K, DIST, scene.T_cam_table)(x, y, th, P[sel], D[sel], w, normals=normals)
-    ref = [_pose_by_pose_score(eimg, scene.T_cam_table, *q, P[sel], D[sel], w, normals) for q in zip(x, y, th)]
+    got = _image_scorer(eimg, K, DIST, scene.T_cam_table)(x, y, th, P, D, w, normals=normals)
+    ref = [_pose_by_pose_score(eimg, scene.T_cam_table, *q, P, D, w, normals) for q in zip(x, y, th)]
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9)
     assert got[0] > 0.3 and got[0] >= np.max(got) - 1e-9       # the true pose scores best (measured 0.49)
 
