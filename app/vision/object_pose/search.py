@@ -24,7 +24,7 @@ from app.geometry.model_edges import PreparedModel, project_points_px
 from app.geometry.transforms import check_pose, inv, make_pose, transform_points
 from app.vision.object_pose.edge_image import EdgeImage, nearest_edge_maps
 from app.vision.object_pose.planar_fit import planar_fit, sample_subset
-from app.vision.object_pose.score_kernel import planar_scores
+from app.vision.object_pose.search_kernels import conj_product_sum, planar_scores
 
 
 @dataclass
@@ -270,7 +270,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         # sum_k FS_k conj(FK_k) as conj(sum_k conj(FS_k) FK_k): the support's spectra conjugated once
         # per plane instead of every turn's template spectra, a pass less over the largest arrays;
         # the same numbers (IEEE products and sums are symmetric under the sign flips)
-        corr = sfft.irfft2(np.conj(np.einsum("kij,kij->ij", FSc_used, FK)), s=(Py, Px), workers=-1)
+        corr = sfft.irfft2(conj_product_sum(FSc_used, FK), s=(Py, Px), workers=-1)
         score[it] = np.roll(corr, (Rk, Rk), axis=(0, 1))[:ny, :nx]
     flat = score.ravel()
     top = _top_k(flat, min(len(flat), 20 * n_coarse))
@@ -344,7 +344,7 @@ def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, ma
     ``normals`` (from :func:`edge_faces_of`) only the samples that can show at that pose count, by
     the rule of :func:`app.geometry.model_edges.visible_edge_samples` without its z-buffer.
 
-    ``compiled``: the numba loop of :mod:`.score_kernel` (about 10x faster, the same scores to
+    ``compiled``: the numba loop of :mod:`.search_kernels` (about 10x faster, the same scores to
     ~1e-15); the numpy code below is its reference, and serves a tilted sensor (14 coefficients with
     tau_x, tau_y), which the loop does not model."""
     R = T_cam_table[:3, :3]

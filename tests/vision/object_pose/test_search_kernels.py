@@ -1,6 +1,7 @@
-"""The compiled image scorer (app.vision.object_pose.score_kernel) against the numpy scorer it
-replaces: the same scores for every pose, every distortion model OpenCV has, with and without the
-visibility rule, for poses off the image and behind the camera too."""
+"""The plane search's compiled loops (app.vision.object_pose.search_kernels) against the numpy they
+replace: the image scorer's scores for every pose, every distortion model OpenCV has, with and
+without the visibility rule, for poses off the image and behind the camera too; the correlation's
+spectra sums bit for bit."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import numpy as np
 import pytest
 
 from app.vision.object_pose.search import _image_scorer
+from app.vision.object_pose.search_kernels import conj_product_sum
 from tests.vision.object_pose.test_locate import DIST, K
 from tests.vision.object_pose.test_search import _bracket_scene, _horizontal_template
 
@@ -60,3 +62,13 @@ def test_behind_the_camera_and_tilted_sensors():
     got = _image_scorer(eimg, K, tilted, scene.T_cam_table)(*args, normals=normals)
     np.testing.assert_array_equal(got, _image_scorer(eimg, K, tilted, scene.T_cam_table, compiled=False)(
         *args, normals=normals))
+
+
+@pytest.mark.parametrize("k", [1, 4, 24])
+def test_the_spectra_are_summed_as_numpy_sums_them(k):
+    rng = np.random.default_rng(k)
+    a, b = ((rng.standard_normal((k, 37, 20)) + 1j * rng.standard_normal((k, 37, 20))).astype(np.complex64)
+            for _ in range(2))
+    got = conj_product_sum(a, b)
+    assert got.dtype == np.complex64
+    np.testing.assert_array_equal(got, np.conj(np.einsum("kij,kij->ij", a, b)))
