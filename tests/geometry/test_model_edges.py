@@ -133,3 +133,21 @@ def test_project_points_with_every_coefficient_count_matches_opencv():
         d = np.array(dist)
         ref, _ = cv2.projectPoints(P, np.zeros(3), np.zeros(3), K, d)
         np.testing.assert_allclose(project_points_px(P, K, d), ref.reshape(-1, 2), atol=1e-9)
+
+
+def test_a_symmetry_already_found_is_told_as_np_allclose_tells_it():
+    """``_one_of`` compares a pose with every symmetry found at once; its answer is the one of
+    ``any(np.allclose(S, s.S, atol))``, near the tolerance too."""
+    from app.geometry.model_edges import Symmetry, _one_of
+
+    rng = np.random.default_rng(7)
+    found = [Symmetry(S=np.round(rng.standard_normal((4, 4)) * 2, 1), axis_obj=np.array([0.0, 0.0, 1.0]),
+                      angle_deg=90.0, matched_fraction=1.0, exact=True) for _ in range(6)]
+    atol = 1e-4
+    assert not _one_of(found[0].S, [], atol)
+    told = []
+    for k in range(400):
+        S = found[k % 6].S + rng.choice([0.0, 0.5, 0.9, 1.0, 1.1, 3.0]) * atol * rng.choice([-1, 1], (4, 4))
+        told.append(_one_of(S, found, atol))
+        assert told[-1] == any(np.allclose(S, s.S, atol=atol) for s in found)
+    assert 50 < sum(told) < 350                  # both answers asked for
