@@ -80,28 +80,27 @@ def planar_scores(hx, hy, ht, P, D, w, N0, N1, smooth, use_normals, w_floor, R, 
                 if not vis:
                     continue
                 den += w[j]
-            # camera frame: the point and the point half a mm along the edge
-            Dt0 = c * D[j, 0] - s * D[j, 1]
-            Dt1 = s * D[j, 0] + c * D[j, 1]
-            Dt2 = D[j, 2]
-            Xc0 = X0 * R[0, 0] + X1 * R[0, 1] + X2 * R[0, 2] + t[0]
+            Xc0 = X0 * R[0, 0] + X1 * R[0, 1] + X2 * R[0, 2] + t[0]      # camera frame
             Xc1 = X0 * R[1, 0] + X1 * R[1, 1] + X2 * R[1, 2] + t[1]
             Xc2 = X0 * R[2, 0] + X1 * R[2, 1] + X2 * R[2, 2] + t[2]
-            Y0 = (Dt0 * R[0, 0] + Dt1 * R[0, 1] + Dt2 * R[0, 2]) * 0.5 + Xc0
-            Y1 = (Dt0 * R[1, 0] + Dt1 * R[1, 1] + Dt2 * R[1, 2]) * 0.5 + Xc1
-            Y2 = (Dt0 * R[2, 0] + Dt1 * R[2, 1] + Dt2 * R[2, 2]) * 0.5 + Xc2
             u, v = _project(Xc0, Xc1, Xc2, K, d, distorted, rational, prism)
             if not (u >= 0 and v >= 0 and u <= W - 1 and v <= H - 1):     # NaN fails too
                 continue
-            u2, v2 = _project(Y0, Y1, Y2, K, d, distorted, rational, prism)
-            tu, tv = u2 - u, v2 - v
             px = int(v) * W + int(u)
-            dist = d_map[px]
-            val = np.float32(1.0) - dist / tau32
-            if val <= 0:
+            val = np.float32(1.0) - d_map[px] / tau32
+            if val <= 0:                # no edge near: its direction does not matter (a third of them)
                 continue
             if val > 1:
                 val = np.float32(1.0)
+            # the edge's direction in the image: the point half a mm along it, projected
+            Dt0 = c * D[j, 0] - s * D[j, 1]
+            Dt1 = s * D[j, 0] + c * D[j, 1]
+            Dt2 = D[j, 2]
+            Y0 = (Dt0 * R[0, 0] + Dt1 * R[0, 1] + Dt2 * R[0, 2]) * 0.5 + Xc0
+            Y1 = (Dt0 * R[1, 0] + Dt1 * R[1, 1] + Dt2 * R[1, 2]) * 0.5 + Xc1
+            Y2 = (Dt0 * R[2, 0] + Dt1 * R[2, 1] + Dt2 * R[2, 2]) * 0.5 + Xc2
+            u2, v2 = _project(Y0, Y1, Y2, K, d, distorted, rational, prism)
+            tu, tv = u2 - u, v2 - v
             tn = np.sqrt(tu * tu + tv * tv) + 1e-12
             # the image gradient is perpendicular to the edge: |sin(angle between gradient and edge)|
             if np.abs(cos_map[px] * tv - sin_map[px] * tu) / tn >= cos_tol:
