@@ -44,6 +44,19 @@ MIN_SIDE_AREA_MM2 = 20.0
 LONE_MIN_Z_MM = 5.0
 
 
+def _along(a: Face) -> np.ndarray:
+    """The horizontal unit direction along face ``a`` (``z x n``)."""
+    u = np.cross([0.0, 0.0, 1.0], a.n)
+    return u / max(np.linalg.norm(u), 1e-12)
+
+
+def _shared_extent(a: Face, b: Face, u: np.ndarray) -> tuple[float, float, float, float]:
+    """What faces ``a`` and ``b`` share seen across the gap: (lo_u, hi_u) along ``u`` and (lo_z,
+    hi_z) in height, mm (empty where lo > hi)."""
+    return (max((a.pts @ u).min(), (b.pts @ u).min()), min((a.pts @ u).max(), (b.pts @ u).max()),
+            max(a.pts[:, 2].min(), b.pts[:, 2].min()), min(a.pts[:, 2].max(), b.pts[:, 2].max()))
+
+
 def jaw_openings(faces: tuple[Face, ...] | list[Face], max_gap_mm: float) -> list[tuple[Face, Face, float]]:
     """Pairs of faces that face each other across a gap of at most ``max_gap_mm`` and overlap when
     seen across it (along the jaws by :data:`MIN_OVERLAP_MM`, in height by :data:`JAW_MIN_HEIGHT_MM`):
@@ -56,10 +69,7 @@ def jaw_openings(faces: tuple[Face, ...] | list[Face], max_gap_mm: float) -> lis
             gap = -(a.d + b.d)              # a: n.x >= d_a, b: -n.x >= d_b (n = a.n = -b.n)
             if not 0.0 < gap <= max_gap_mm:
                 continue
-            u = np.cross([0.0, 0.0, 1.0], a.n)
-            u /= max(np.linalg.norm(u), 1e-12)
-            lo_u, hi_u = max((a.pts @ u).min(), (b.pts @ u).min()), min((a.pts @ u).max(), (b.pts @ u).max())
-            lo_z, hi_z = max(a.pts[:, 2].min(), b.pts[:, 2].min()), min(a.pts[:, 2].max(), b.pts[:, 2].max())
+            lo_u, hi_u, lo_z, hi_z = _shared_extent(a, b, _along(a))
             if hi_u - lo_u >= MIN_OVERLAP_MM and hi_z - lo_z >= JAW_MIN_HEIGHT_MM:
                 out.append((a, b, float(gap)))
     return out
@@ -87,17 +97,11 @@ def _holds(faces, max_gap_mm: float) -> list[tuple]:
     face ``a``, the extents both faces share); where there is none, every lone jaw face (a fixed jaw
     whose moving jaw was not located) with ``gap`` None: a vertical face at least
     :data:`JAW_MIN_HEIGHT_MM` tall whose foot stands :data:`LONE_MIN_Z_MM` above the table."""
-    pairs = [(a, b, gap) for a, b, gap in jaw_openings(tuple(faces), max_gap_mm)]
+    pairs: list[tuple] = jaw_openings(tuple(faces), max_gap_mm)
     if not pairs:
         pairs = [(f, f, None) for f in faces
                  if f.pts[:, 2].min() >= LONE_MIN_Z_MM and np.ptp(f.pts[:, 2]) >= JAW_MIN_HEIGHT_MM]
-    out = []
-    for a, b, gap in pairs:
-        u = np.cross([0.0, 0.0, 1.0], a.n)
-        u /= np.linalg.norm(u)
-        out.append((a, gap, max((a.pts @ u).min(), (b.pts @ u).min()), min((a.pts @ u).max(), (b.pts @ u).max()),
-                    max(a.pts[:, 2].min(), b.pts[:, 2].min()), min(a.pts[:, 2].max(), b.pts[:, 2].max())))
-    return out
+    return [(a, gap, *_shared_extent(a, b, _along(a))) for a, b, gap in pairs]
 
 
 def clamped_poses(model: PreparedModel, hull_obj: np.ndarray, faces, heights_mm, states,
@@ -114,9 +118,7 @@ def clamped_poses(model: PreparedModel, hull_obj: np.ndarray, faces, heights_mm,
         H = transform_points(T_rest, hull_obj)
         stances.append((st, T_rest, H, _sides(H)))
     for a, gap, lo_u, hi_u, lo_z, hi_z in _holds(faces, float(model.diameter_mm)):
-        n = a.n
-        u = np.cross([0.0, 0.0, 1.0], n)
-        u /= np.linalg.norm(u)
+        n, u = a.n, _along(a)
         phi_n = float(np.arctan2(n[1], n[0]))
         for st, T_rest, H, sides in stances:
             for m in sides:

@@ -36,6 +36,7 @@ from app.vision.object_pose.results import ObjectFailure, ObjectPose
 from app.vision.object_pose.search import (
     Hyp,
     find_starts,
+    search_planes,
     searched_states,
     settle_start,
     starts_from_poses,
@@ -359,7 +360,7 @@ def _find(ctx: LocateContext, start_poses, table_extent_xy, start_capture=None):
     # held between located jaws the part's stance follows them: those few poses, scored directly
     hyps, px_per_mm = found
     t = time.perf_counter()
-    heights = sorted({float(h[0] if isinstance(h, tuple) else h) for h in o.height_offsets_mm})
+    heights = sorted({h for h, _ in search_planes(o.height_offsets_mm)})
     held = clamped_starts(ctx.model, ctx.hull_obj, ctx.clamp_faces, heights,
                           searched_states(ctx.model, o.resting_states), ctx.eimg, ctx.K, ctx.dist,
                           ctx.T_cam_table, px_per_mm)

@@ -336,6 +336,12 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     return out
 
 
+def _shown_weight_floor(w: np.ndarray, smooth: np.ndarray) -> float:
+    """The least weight a pose's score is a share of: half the creases' (half the whole template's
+    where it has none), so that a pose hiding most of the part does not score on its few edges left."""
+    return 0.5 * float(w[~smooth].sum()) if (~smooth).any() else 0.5 * float(w.sum())
+
+
 def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, max_angle_deg: float = 20.0,
                   compiled: bool = True):
     """Score function for many planar poses at once: each pose (x, y, theta) moves template points
@@ -372,7 +378,7 @@ def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, ma
             else:
                 N0, N1, smooth = (np.ascontiguousarray(a) for a in normals)
                 N0, N1 = N0.astype(float, copy=False), N1.astype(float, copy=False)
-                w_floor = 0.5 * float(f64[5][~smooth].sum()) if (~smooth).any() else 0.5 * float(f64[5].sum())
+                w_floor = _shown_weight_floor(f64[5], smooth)
             return planar_scores(*f64, N0, N1, smooth.astype(bool, copy=False), normals is not None, w_floor,
                                  Rc, tc, C, Kf, d12, *flags, d_map, cos_map, sin_map, W, H, float(tau_px),
                                  float(cos_tol))
@@ -405,7 +411,7 @@ def _image_scorer(eimg: EdgeImage, K, dist, T_cam_table, tau_px: float = 2.0, ma
                 nx += Nk[None, :, 2] * V2
                 facing.append(nx > 0)
             vis = np.where(smooth[None, :], facing[0] ^ facing[1], facing[0] | facing[1])
-            w_floor = 0.5 * float(w[~smooth].sum()) if (~smooth).any() else 0.5 * float(w.sum())
+            w_floor = _shown_weight_floor(w, smooth)
         Dt = np.empty((n, M, 3))
         Dt[..., 0] = c * D[None, :, 0] - s * D[None, :, 1]
         Dt[..., 1] = s * D[None, :, 0] + c * D[None, :, 1]
@@ -525,6 +531,12 @@ def searched_states(model: PreparedModel, resting_states=None, min_state_probabi
             if s.same_as < 0 and (i == 0 or s.probability >= min_state_probability or s.cad_axis)]
 
 
+def search_planes(height_offsets_mm) -> list[tuple[float, tuple | None]]:
+    """``LocateOptions.height_offsets_mm`` as (height mm, table-plane extent (x0, x1, y0, y1) to search
+    there, or None: the whole table): an entry is a height or such a pair."""
+    return [(float(h[0]), h[1]) if isinstance(h, tuple) else (float(h), None) for h in height_offsets_mm]
+
+
 def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, height_offsets_mm=(0.0,),
             resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10,
             max_edges: int = 60000, rng=None, timings: dict | None = None, table_extent_xy=None,
@@ -573,8 +585,7 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
     scorer_wide = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(1.2 * b_px, 3.0, 20.0)))
     scorer_mid = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(0.6 * b_px, 2.5, 10.0)))
     planes = []
-    for h in height_offsets_mm:            # a height, or (height, table-plane extent to search there)
-        h, ext = (h if isinstance(h, tuple) else (h, None))
+    for h, ext in search_planes(height_offsets_mm):
         ext = extent if ext is None else _intersect(ext, extent)
         if ext is not None:
             planes.append((float(h), ext))
