@@ -12,7 +12,7 @@ Units: mm and rad in the table frame; pixels in the image.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -38,7 +38,36 @@ class Hyp:
     source: str = "plane"           # "plane": the plane search; "clamped": between located jaws
 
 
-def _edge_rays_table(eimg: EdgeImage, K, dist, T_table_cam, max_edges: int, rng):
+@dataclass(frozen=True, eq=False)
+class EdgeRays:
+    """Subsampled edge pixels of one image as rays in the table frame (``r0``; ``r1`` through the
+    point one px along the edge; ``idx`` into the edge image's pixels), and what does not depend on
+    the horizontal plane they are cast on.
+
+    Cast onto the plane z, an edge runs along ``lam1 r1 - lam0 r0`` with ``lam = (z - C_z) / r_z``,
+    that is ``(z - C_z) (r1 / r1_z - r0 / r0_z)``: the same direction on every plane (mod pi), so it
+    is computed once per image (``phi``, rad mod pi), not once per plane searched."""
+
+    idx: np.ndarray
+    r0: np.ndarray
+    r1: np.ndarray
+    phi: np.ndarray
+    _channels: dict = field(default_factory=dict, repr=False)
+
+    def channel_bits(self, n_channels: int) -> np.ndarray:
+        """Per edge, bit k set when its direction lies within one channel width of channel k's
+        centre ((k + 0.5) pi / n_channels): the channels of :func:`_support_maps`, once per image."""
+        if n_channels not in self._channels:
+            ch_w = np.pi / n_channels
+            bits = np.zeros(len(self.phi), np.uint32)
+            for k in range(n_channels):
+                dphi = np.abs(np.mod(self.phi - (k + 0.5) * ch_w + np.pi / 2, np.pi) - np.pi / 2)
+                bits |= (dphi <= ch_w).astype(np.uint32) << np.uint32(k)
+            self._channels[n_channels] = bits
+        return self._channels[n_channels]
+
+
+def _edge_rays_table(eimg: EdgeImage, K, dist, T_table_cam, max_edges: int, rng) -> EdgeRays | None:
     """Subsampled edge pixels as rays in the table frame, plus rays one px along the edge."""
     n = len(eimg.edge_uv)
     if n == 0:
@@ -50,7 +79,10 @@ def _edge_rays_table(eimg: EdgeImage, K, dist, T_table_cam, max_edges: int, rng)
     both = np.vstack([uv, uv + 2.0 * tang]).reshape(-1, 1, 2)
     xy = cv2.undistortPoints(both, K, np.asarray(dist, float)).reshape(-1, 2)
     rays = np.column_stack([xy, np.ones(len(xy))]) @ T_table_cam[:3, :3].T
-    return idx, rays[: len(idx)], rays[len(idx):]
+    r0, r1 = rays[: len(idx)], rays[len(idx):]
+    with np.errstate(divide="ignore", invalid="ignore"):   # rays along the plane: no direction on it
+        d = r1[:, :2] / r1[:, 2:3] - r0[:, :2] / r0[:, 2:3]
+    return EdgeRays(idx, r0, r1, np.mod(np.arctan2(d[:, 1], d[:, 0]), np.pi))
 
 
 def _levels(m_z: np.ndarray, w: np.ndarray | None = None, max_levels: int = 4,
@@ -77,35 +109,29 @@ def _levels(m_z: np.ndarray, w: np.ndarray | None = None, max_levels: int = 4,
     return [(float(h), np.nonzero(close & (near == i))[0]) for i, h in enumerate(heights)]
 
 
-def _plane_edges(rays, C, z: float, extent_xy, b: float):
+def _plane_edges(rays: EdgeRays, C, z: float, extent_xy, b: float, n_channels: int):
     """Image edge pixels cast onto the horizontal plane z (table frame) on a grid of b mm: grid size
-    (nx, ny), cell indices (ix, iy), edge direction on the plane (rad, mod pi), inside-grid mask."""
-    _, r0, r1 = rays
+    (nx, ny), cell indices (ix, iy) and channel bits (:meth:`EdgeRays.channel_bits`) of the edges
+    that fall inside the grid."""
     x0, x1, y0, y1 = extent_xy
     nx = int(np.ceil((x1 - x0) / b)) + 1
     ny = int(np.ceil((y1 - y0) / b)) + 1
-    lam0 = (z - C[2]) / r0[:, 2]
-    lam1 = (z - C[2]) / r1[:, 2]
+    lam0 = (z - C[2]) / rays.r0[:, 2]
+    lam1 = (z - C[2]) / rays.r1[:, 2]
     ok = (lam0 > 0) & (lam1 > 0)
-    p0 = C[:2] + lam0[ok, None] * r0[ok, :2]
-    p1 = C[:2] + lam1[ok, None] * r1[ok, :2]
-    dd = p1 - p0
-    e_phi = np.mod(np.arctan2(dd[:, 1], dd[:, 0]), np.pi)
+    p0 = C[:2] + lam0[ok, None] * rays.r0[ok, :2]
     ix = np.floor((p0[:, 0] - x0) / b + 0.5).astype(np.int64)
     iy = np.floor((p0[:, 1] - y0) / b + 0.5).astype(np.int64)
     inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-    return nx, ny, ix, iy, e_phi, inside
+    return nx, ny, ix[inside], iy[inside], rays.channel_bits(n_channels)[ok][inside]
 
 
-def _support_maps(rays, C, z: float, extent_xy, b: float, n_channels: int, tau_bins: float):
+def _support_maps(rays: EdgeRays, C, z: float, extent_xy, b: float, n_channels: int, tau_bins: float):
     """Edge support on the plane z: (n_channels, ny, nx) in [0, 1], 1 on an edge of that direction."""
-    nx, ny, ix, iy, e_phi, inside = _plane_edges(rays, C, z, extent_xy, b)
-    ix, iy, e_phi = ix[inside], iy[inside], e_phi[inside]     # a plane's extent holds a share of them
-    ch_w = np.pi / n_channels
+    nx, ny, ix, iy, bits = _plane_edges(rays, C, z, extent_xy, b, n_channels)
     sup = np.zeros((n_channels, ny, nx), np.float32)
     for k in range(n_channels):
-        dphi = np.abs(np.mod(e_phi - (k + 0.5) * ch_w + np.pi / 2, np.pi) - np.pi / 2)
-        m = dphi <= ch_w                      # channel k holds edges within one channel width
+        m = (bits & np.uint32(1 << k)) != 0   # channel k holds edges within one channel width
         img = np.full((ny, nx), 255, np.uint8)
         img[iy[m], ix[m]] = 0
         dt = cv2.distanceTransform(img, cv2.DIST_L2, 3)
@@ -564,7 +590,7 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
     rays = eimg.cache[key]
     if rays is None:
         return "the image has no edges"
-    _, r0, r1 = rays
+    r0, r1 = rays.r0, rays.r1
     lam = -C[2] / r0[:, 2]
     lam1 = -C[2] / r1[:, 2]
     okp = (lam > 0) & (lam1 > 0)

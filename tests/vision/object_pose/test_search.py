@@ -3,6 +3,7 @@ settled back onto the part."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from app.geometry import parts
@@ -201,3 +202,44 @@ def test_top_k_from_a_threshold_is_the_partitions_answer():
         assert np.array_equal(_top_k(flat, k), _top_k_partitioned(flat, k))
     tied = np.round(rng.normal(size=200_000), 2).astype(np.float32)      # many equal values
     assert np.array_equal(_top_k(tied, 800), _top_k_partitioned(tied, 800))
+
+
+def test_an_edges_direction_on_a_plane_is_computed_once_per_image_and_is_the_cast_ones():
+    """The edge directions and channels taken once per image (:class:`EdgeRays`) against the edges
+    cast onto each plane and their direction measured there: the same channels, the same support
+    maps, on planes below the camera at the table's and risers' heights (and for the rays that miss
+    a plane: left out)."""
+    from app.geometry.transforms import inv
+    from app.vision.object_pose.search import _edge_rays_table, _plane_edges, _support_maps
+
+    _model, _T, scene, eimg = _bracket_scene()
+    T_table_cam = inv(scene.T_cam_table)
+    rays = _edge_rays_table(eimg, K, DIST, T_table_cam, 60000, np.random.default_rng(0))
+    C = T_table_cam[:3, 3]
+    ext, b, nch = (150.0, 650.0, 0.0, 400.0), 2.0, 4
+    ch_w = np.pi / nch
+    for z in (0.0, 7.5, 25.0, 120.0):
+        lam0 = (z - C[2]) / rays.r0[:, 2]
+        lam1 = (z - C[2]) / rays.r1[:, 2]
+        ok = (lam0 > 0) & (lam1 > 0)
+        dd = lam1[ok, None] * rays.r1[ok, :2] - lam0[ok, None] * rays.r0[ok, :2]     # the cast edge
+        phi = np.mod(np.arctan2(dd[:, 1], dd[:, 0]), np.pi)
+        p0 = C[:2] + lam0[ok, None] * rays.r0[ok, :2]
+        ix = np.floor((p0[:, 0] - ext[0]) / b + 0.5).astype(np.int64)
+        iy = np.floor((p0[:, 1] - ext[2]) / b + 0.5).astype(np.int64)
+        nx, ny, gx, gy, bits = _plane_edges(rays, C, z, ext, b, nch)
+        inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+        assert inside.sum() > 1000
+        np.testing.assert_array_equal(gx, ix[inside])
+        np.testing.assert_array_equal(gy, iy[inside])
+        sup = _support_maps(rays, C, z, ext, b, nch, 1.5)
+        for k in range(nch):
+            dphi = np.abs(np.mod(phi[inside] - (k + 0.5) * ch_w + np.pi / 2, np.pi) - np.pi / 2)
+            np.testing.assert_array_equal((bits & (1 << k)) != 0, dphi <= ch_w)
+            img = np.full((ny, nx), 255, np.uint8)
+            img[iy[inside][dphi <= ch_w], ix[inside][dphi <= ch_w]] = 0
+            ref = np.clip(1.0 - cv2.distanceTransform(img, cv2.DIST_L2, 3) / 1.5, 0.0, 1.0)
+            np.testing.assert_array_equal(sup[k], ref.astype(np.float32))
+    # a plane above the camera: its rays are the other ones, left out where they miss it
+    _, _, gx, _, _ = _plane_edges(rays, C, C[2] + 100.0, ext, b, nch)
+    assert len(gx) == 0
