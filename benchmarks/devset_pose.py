@@ -29,6 +29,7 @@ Per-scene rows are written to ``OUT/<method>.json`` (the report is made from the
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import sys
@@ -61,6 +62,9 @@ def _nearest(errs: list):
 # the devset shop's parallels (every parallel_*.stl of its meshes, their heights) are declared as its
 # risers; --no-risers leaves every riser of unknown height
 RISERS = True
+# threads of each scene's plane search (main: the cores shared among the jobs); 1 for a checkout
+# whose localize does not take it
+THREADS = 1
 
 
 @lru_cache(maxsize=4)
@@ -235,6 +239,8 @@ def run_scene(entry: dict, method: str) -> dict:
     cands += [Candidate(n, o["mesh_obj"] if "mesh_obj" in o else trimesh.load(DEVSET / o["mesh"], force="mesh"),
                         kind="clamp") for n, o in clamps.items()]
     kw = {"height_offsets_mm": (0.0,)} if method == "baseline" else {"chain": True}
+    if "search_threads" in inspect.signature(localize).parameters:
+        kw["search_threads"] = THREADS
     if method in ("engine", "clamped") and entry.get("source") != "synth" and RISERS:
         kw["riser_heights_mm"] = shop_riser_heights(DEVSET)
     # the service prepares a model once per revision and keeps it (services/setups.py): the time per
@@ -254,7 +260,7 @@ def run_scene(entry: dict, method: str) -> dict:
     cpu_ms = (time.process_time() - cpu) * 1e3     # CPU time of this process: steadier than ms on a shared machine
     row = {"scene": entry["scene_id"], "mode": entry["fixture_mode"], "workpiece": entry["workpiece"],
            "half": 0 if entry["index"] < 20 else 1, "pair": entry.get("pair"), "ms": ms, "cpu_ms": cpu_ms,
-           "prep_ms": prep_ms,
+           "prep_ms": prep_ms, "threads": kw.get("search_threads", 1),
            "markers_seen": len(sc.gt["visible_marker_ids"]),
            "visible_fraction": float(wp["visible_fraction"]), "crash": err,
            "gamma": (res.table or {}).get("gamma") if res is not None else None}
@@ -478,6 +484,9 @@ def main(argv=None) -> int:
     if a.no_risers:
         global RISERS
         RISERS = False           # read by the workers, which fork after this
+    global THREADS               # the service's rule (services.setups.search_threads): cores per job
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    THREADS = max(1, cores // max(a.jobs, 1))
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     methods = a.methods.split(",")

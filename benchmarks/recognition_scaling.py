@@ -1,6 +1,6 @@
 """Benchmark: recognition time against the size of the library (issue 12, item 6).
 
-    .venv/bin/python benchmarks/recognition_scaling.py [--sizes 5,20,50,200] [--scenes setup_010,setup_030]
+    .venv/bin/python benchmarks/recognition_scaling.py [--sizes 5,20,50,200] [--scenes setup_010,setup_030] [--threads 2]
 
 On table scenes of the independent devset (1920 x 1200), :func:`app.vision.localize.localize` with
 ``recognise=True`` chooses the scene's workpiece among N library models: the workpiece itself and
@@ -14,6 +14,7 @@ time per model, whether the workpiece was accepted, and the ratio to the smalles
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import sys
@@ -66,6 +67,8 @@ def main() -> int:
     ap.add_argument("--sizes", default="5,20,50,200")
     ap.add_argument("--scenes", default="setup_010,setup_030")
     ap.add_argument("--out", default="var/recognition_scaling.json")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="threads of each plane search (localize's search_threads; the service: its cores per job)")
     a = ap.parse_args()
     sizes = [int(v) for v in a.sizes.split(",")]
     man = json.loads((DEVSET / "manifest.json").read_text())
@@ -85,10 +88,11 @@ def main() -> int:
         for n in sizes:
             lib = pool[:n]
             t, cpu = time.perf_counter(), time.process_time()
-            res = localize(image, sc.K, sc.dist, sc.layout, lib, recognise=True, table_model=sc.table_candidate)
+            kw = {"search_threads": a.threads} if "search_threads" in inspect.signature(localize).parameters else {}
+            res = localize(image, sc.K, sc.dist, sc.layout, lib, recognise=True, table_model=sc.table_candidate, **kw)
             dt, cpu_s = time.perf_counter() - t, time.process_time() - cpu
             names = [o["name"] for o in res.objects]
-            row = {"scene": entry["scene_id"], "n": n, "s": dt, "cpu_s": cpu_s, "accepted": names, "right": wp["name"] in names,
+            row = {"scene": entry["scene_id"], "n": n, "threads": kw.get("search_threads", 1), "s": dt, "cpu_s": cpu_s, "accepted": names, "right": wp["name"] in names,
                    "wrong": [x for x in names if x != wp["name"]], "prep_s_all": prep_s}
             rows.append(row)
             print(json.dumps(row), flush=True)

@@ -35,6 +35,7 @@ from app.vision import object_pose
 from app.vision.blas_threads import one_blas_thread
 from app.vision.fiducials import draw_table, locate_table
 from app.vision.intrinsics import DEFAULT_INTRINSICS_SIGMA
+from app.vision.object_pose.search import SEARCH_THREADS
 from app.vision.overlay_text import put_banner, put_label, style_for
 from app.vision.photo_model import PhotoModel, View, decide_lookalikes, known_edge_mask
 from app.vision.photo_model import locate as locate_photo
@@ -177,7 +178,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
              min_margin: float = 0.1, height_offsets_mm=(0.0,), table_model: Candidate | None = None,
              chain: bool = False, free_height: bool = False,
              riser_heights_mm: tuple | None = None,
-             intrinsics_sigma: tuple | None = DEFAULT_INTRINSICS_SIGMA) -> LocalizeResult:
+             intrinsics_sigma: tuple | None = DEFAULT_INTRINSICS_SIGMA,
+             search_threads: int = SEARCH_THREADS) -> LocalizeResult:
     """Locate the table and the candidates in one image.
 
     Parameters
@@ -196,6 +198,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         candidates of kind ``support`` (:func:`riser_heights`), hidden under the part or not
     intrinsics_sigma : how well ``K`` is known (focal length relative, cx px, cy px; 1 sigma): it
         enters every object's sigma (:func:`app.vision.fiducials.locate_table`); None: ``K`` exact
+    search_threads : threads of each plane search (its resting states at once): the cores this
+        call may have (the service gives each job its share); the result does not depend on it
     """
     K = np.asarray(K, float)
     dist = np.asarray(dist, float).ravel()
@@ -248,7 +252,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                         min_score=max(min_score, 0.6), min_margin=min_margin,
                                         height_offsets_mm=height_offsets_mm, known_models=known,
                                         free_height=free_height, known_regions=labels,
-                                        table_covariance=table_cov, gamma=table.gamma)
+                                        table_covariance=table_cov, gamma=table.gamma,
+                                        search_threads=search_threads)
             accepted += list(rec.accepted)
             ranked += list(rec.ranked)
             if not rec:
@@ -274,7 +279,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         located, not_found = _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done,
                                            min_score=min_score, min_margin=min_margin, photo_view=photo_view,
                                            photo_xy=table_xy, edges=edges, table_cov=table_cov,
-                                           risers=riser_heights(candidates, riser_heights_mm or ()))
+                                           risers=riser_heights(candidates, riser_heights_mm or ()),
+                                           search_threads=search_threads)
     else:
         for cand in ordered:
             t = time.perf_counter()
@@ -289,7 +295,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                                  occluder_models=occluders, min_score=min_score,
                                                  min_margin=min_margin, height_offsets_mm=height_offsets_mm,
                                                  known_models=known, free_height=free_height, known_regions=labels,
-                                                 **kind_options(cand.kind))
+                                                 search_threads=search_threads, **kind_options(cand.kind))
             _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table)
     for i, (cand, pose) in enumerate(located):
         objects.append(object_entry(cand, pose, COLOURS[i % len(COLOURS)]))
@@ -406,7 +412,7 @@ def _edges_once(image: np.ndarray, gamma: float) -> Callable[[], object_pose.Edg
 
 def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, done, *, min_score, min_margin,
                   photo_view: View | None = None, photo_xy=None, edges: Callable | None = None, table_cov=None,
-                  risers: tuple = ()):
+                  risers: tuple = (), search_threads: int = SEARCH_THREADS):
     """The support chain: fixtures first (biggest first, each on the surfaces found so far, standing
     as modelled; a guided one after its carrier and only along its guide there), then every workpiece
     on all support surfaces and over risers of unknown height, with the located fixtures' edges
@@ -478,7 +484,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
                 height_offsets_mm=tuple(planes), free_height=not fixture, known_models=kn, known_regions=labels,
                 known_heights_mm=tuple(s.height_mm for s in (seats if fixture else surfaces)),
                 clamp_faces=() if fixture else tuple(jaw_faces),    # a fixture stands on its own
-                riser_heights_mm=() if fixture else risers,
+                riser_heights_mm=() if fixture else risers, search_threads=search_threads,
                 **guided, **(FIXTURE_OPTIONS if fixture else {}))
             if pose and carrier_pose is not None:
                 pose = _kept_on_guide(cand, pose, guide, carrier_pose.T_table_obj)

@@ -354,7 +354,7 @@ def _find(ctx: LocateContext, start_poses, table_extent_xy, start_capture=None):
                         resting_states=o.resting_states, n_starts=o.n_starts, n_planar=o.n_planar,
                         n_coarse=o.n_coarse, coarse_step_max_mm=o.coarse_step_max_mm,
                         max_edges=o.max_edges, rng=np.random.default_rng(o.seed), timings=ctx.timings,
-                        table_extent_xy=extent)
+                        table_extent_xy=extent, threads=o.search_threads)
     if isinstance(found, str) or not ctx.clamp_faces:
         return found
     # held between located jaws the part's stance follows them: those few poses, scored directly

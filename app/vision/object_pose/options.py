@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
 
-from app.vision.object_pose.search import COARSE_STEP_MAX_MM
+from app.vision.object_pose.search import COARSE_STEP_MAX_MM, SEARCH_THREADS
 from app.vision.object_pose.uncertainty import (CONTACT_SIGMA_DEG, CONTACT_SIGMA_MM, FREE_CONTACT_SIGMA_DEG,
                                                 RISER_SIGMA_MM, SIGMA_SCALE)
 
@@ -38,6 +38,8 @@ class LocateOptions:
     n_coarse : coarse cells of the plane search re-scored in the image (per resting state and height)
     coarse_step_max_mm : the plane search's coarse cell is the part's size / 18, at most this (mm)
     max_edges : image edge pixels cast onto the search planes (a random subset beyond)
+    search_threads : resting states searched at the same time (``search.SEARCH_THREADS``); the
+        result does not depend on it
     sigma_scale : factor on the image's share of the covariance (calibrated on held-out scenes)
     seed : of the edge subset (results are reproducible)
     contact_sigma_mm, contact_sigma_deg : how far a part on a known surface may sit above it or tilt
@@ -68,6 +70,7 @@ class LocateOptions:
     n_coarse: int = 40
     coarse_step_max_mm: float = COARSE_STEP_MAX_MM
     max_edges: int = 60000
+    search_threads: int = SEARCH_THREADS
     sigma_scale: float = SIGMA_SCALE
     seed: int = 0
     contact_sigma_mm: float = CONTACT_SIGMA_MM

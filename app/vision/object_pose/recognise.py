@@ -44,6 +44,8 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
         eimg = mask_table_regions(eimg, regions, T_cam_table, K, dist)
     search_kw = {k: locate_kw[k] for k in ("height_offsets_mm", "resting_states", "n_starts", "n_planar")
                  if k in locate_kw}
+    if "search_threads" in locate_kw:
+        search_kw["threads"] = locate_kw["search_threads"]
     coarse = []
     for m in candidates:
         found = find_starts(eimg, K, dist, T_cam_table, m, **search_kw)

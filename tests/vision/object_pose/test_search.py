@@ -243,3 +243,25 @@ def test_an_edges_direction_on_a_plane_is_computed_once_per_image_and_is_the_cas
     # a plane above the camera: its rays are the other ones, left out where they miss it
     _, _, gx, _, _ = _plane_edges(rays, C, C[2] + 100.0, ext, b, nch)
     assert len(gx) == 0
+
+
+def test_resting_states_searched_on_two_threads_give_the_starts_of_one():
+    """The plane search with its resting states on two threads (SEARCH_THREADS) against one thread:
+    the same starts in the same order, on two planes (each state's planes share its spectra)."""
+    from app.vision.object_pose.search import find_starts, searched_states
+
+    model, T_true, scene, _ = _bracket_scene()
+    assert len(searched_states(model)) > 1
+    image = _render([SceneObject("bracket_140", model.mesh, T_true, albedo=0.65)],
+                    [150.0, -250.0, 600.0], [400.0, 200.0, 0.0])[1].image
+    found = {}
+    for threads in (1, 2):
+        eimg = prepare_image(image, gamma=scene.gamma)          # its own cache: no memo of the other
+        found[threads] = find_starts(eimg, K, DIST, scene.T_cam_table, model, height_offsets_mm=(0.0, 25.0),
+                                     table_extent_xy=(150.0, 650.0, 0.0, 400.0), threads=threads)
+    (one, px1), (two, px2) = found[1], found[2]
+    assert px1 == px2 and len(one) == len(two) > 0
+    assert len({h.state for h in one}) > 1
+    for a, b in zip(one, two):
+        assert (a.state, a.votes, a.score, a.height_mm) == (b.state, b.votes, b.score, b.height_mm)
+        np.testing.assert_array_equal(a.T_table_obj, b.T_table_obj)
