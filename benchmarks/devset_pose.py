@@ -451,6 +451,14 @@ def clamp_report(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _cores() -> int:
+    try:
+        from app.vision.blas_threads import available_cores
+    except ImportError:          # a checkout from before it (SETUPCAM_CODE)
+        return 1
+    return available_cores()
+
+
 def _job(args):
     entry, method = args
     return method, run_scene(entry, method)
@@ -485,8 +493,7 @@ def main(argv=None) -> int:
         global RISERS
         RISERS = False           # read by the workers, which fork after this
     global THREADS               # the service's rule (services.setups.search_threads): cores per job
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    THREADS = max(1, cores // max(a.jobs, 1))
+    THREADS = max(1, _cores() // max(a.jobs, 1))
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     methods = a.methods.split(",")

@@ -72,6 +72,7 @@ def _load_candidates(args) -> tuple[list, bool]:
 def run(args: argparse.Namespace) -> int:
     import cv2
 
+    from app.vision.blas_threads import available_cores
     from app.vision.intrinsics import load_intrinsics
     from app.vision.localize import localize
 
@@ -93,10 +94,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"setupcam localize: {exc}", file=sys.stderr)
         return 2
     try:
-        # named models: the support chain (fixtures first, the part on their surfaces or over risers)
+        # named models: the support chain (fixtures first, the part on their surfaces or over risers);
+        # one image at a time: its plane search may use every core
         result = localize(image, cam.K_array, cam.dist_array, layout, candidates, recognise=recognise,
                           table_model=table, chain=not recognise, riser_heights_mm=tuple(args.riser),
-                          intrinsics_sigma=cam.sigma_tuple)
+                          intrinsics_sigma=cam.sigma_tuple, search_threads=available_cores())
     except Exception as exc:  # noqa: BLE001 - an engine bug must still end with a sentence, not a traceback
         print(f"setupcam localize: internal error in localisation ({exc.__class__.__name__}: {exc}); "
               "please report it with the image", file=sys.stderr)

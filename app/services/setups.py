@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 from typing import Any
 
 import cv2
@@ -32,6 +31,7 @@ from app.store.models import Capture, Job, LibraryModel, Setup, utcnow
 from app.vision import object_pose
 from app.vision.fiducials import locate_table
 from app.vision.image_header import ImageHeaderError, image_size
+from app.vision.blas_threads import available_cores
 from app.vision.intrinsics import intrinsics_sigma
 from app.vision.localize import (Candidate, draw_pose_overlay, kind_options, localize, marker_labels_table,
                                  object_entry)
@@ -249,8 +249,7 @@ def search_threads(settings) -> int:
     one job on a 2-core panel PC gets both, the operator waits a fifth to a third less."""
     if settings.search_threads:
         return int(settings.search_threads)
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, cores // max(int(settings.workers), 1))
+    return max(1, available_cores() // max(int(settings.workers), 1))
 
 
 def run_setup_job(run: JobRun, setup_id: int) -> Outcome:

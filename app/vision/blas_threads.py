@@ -1,4 +1,4 @@
-"""One BLAS thread for the engine.
+"""One BLAS thread for the engine, and how many cores this process may use.
 
 The engine's linear algebra is many small products (n x 3 points times a 3 x 3 rotation, 6 x 6
 solves), where OpenBLAS's worker threads cost more than they give; on a 2-core machine shared with
@@ -10,6 +10,7 @@ limited to one thread; the limit is restored when they return.
 from __future__ import annotations
 
 import functools
+import os
 from typing import Callable, TypeVar
 
 from threadpoolctl import threadpool_limits
@@ -26,3 +27,10 @@ def one_blas_thread(fn: F) -> F:
             return fn(*args, **kwargs)
 
     return wrapper  # type: ignore[return-value]
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the system tells it, else all)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)

@@ -2,7 +2,7 @@
 
 from threadpoolctl import threadpool_info
 
-from app.vision.blas_threads import one_blas_thread
+from app.vision.blas_threads import available_cores, one_blas_thread
 
 
 def _blas_threads() -> list[int]:
@@ -24,3 +24,13 @@ def test_the_engine_entry_points_are_limited():
 
     for fn in (localize.localize, object_pose.locate_object, object_pose.recognise):
         assert getattr(fn, "__wrapped__", None) is not None, fn.__name__
+
+
+def test_the_cores_a_process_may_use_are_its_affinity_else_all(monkeypatch):
+    import os
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {2, 5, 7}, raising=False)
+    assert available_cores() == 3           # pinned by taskset or a container's cpuset
+    monkeypatch.delattr(os, "sched_getaffinity", raising=False)
+    monkeypatch.setattr(os, "cpu_count", lambda: None)
+    assert available_cores() == 1           # nothing known: one
