@@ -58,8 +58,9 @@ class Settings(BaseSettings):
                          description="Jobs the service's embedded worker runs at once (threads).")
     search_threads: int = Field(default=0, ge=0, validation_alias="SETUPCAM_SEARCH_THREADS",
                                 description="Threads of a setup job's plane search (its resting states at once); "
-                                            "0 = this machine's cores shared among the jobs run at once "
-                                            "(SETUPCAM_WORKERS). The result does not depend on it.")
+                                            "0 = the service's embedded worker shares this machine's cores among "
+                                            "the jobs it runs at once (SETUPCAM_WORKERS), a `setupcam worker` "
+                                            "process takes 1. The result does not depend on it.")
     embedded_worker: bool = Field(default=True, validation_alias="SETUPCAM_EMBEDDED_WORKER",
                                   description="Run jobs inside the service (the SQLite default). false: the service "
                                               "only enqueues and `setupcam worker` processes run the jobs.")

@@ -30,6 +30,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def worker_settings(settings):
+    """The settings a worker process runs its jobs with: a setup's plane search on one thread unless
+    ``SETUPCAM_SEARCH_THREADS`` says otherwise. Workers are started one per core (``--concurrency``), and
+    a process does not know how many others share its machine; the service's embedded worker shares the
+    cores among its own ``SETUPCAM_WORKERS`` instead."""
+    return settings if settings.search_threads else settings.model_copy(update={"search_threads": 1})
+
+
 def run(args: argparse.Namespace) -> int:
     from app.config import Settings
     from app.logging_setup import configure_logging
@@ -44,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.data_dir:
         os.environ["SETUPCAM_DATA_DIR"] = args.data_dir
-    settings = Settings()
+    settings = worker_settings(Settings())
     configure_logging(settings.log_json)
     engine = make_engine(settings.database_url)
     why = wait_for_schema(engine, args.wait_schema_s)
