@@ -29,9 +29,9 @@ from app.store.db import session_scope
 from app.store.files import FileStore
 from app.store.models import Capture, Job, LibraryModel, Setup, utcnow
 from app.vision import object_pose
+from app.vision.blas_threads import available_cores
 from app.vision.fiducials import locate_table
 from app.vision.image_header import ImageHeaderError, image_size
-from app.vision.blas_threads import available_cores
 from app.vision.intrinsics import intrinsics_sigma
 from app.vision.localize import (Candidate, draw_pose_overlay, kind_options, localize, marker_labels_table,
                                  object_entry)

@@ -306,7 +306,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         # per plane instead of every turn's template spectra, a pass less over the largest arrays;
         # the same numbers (IEEE products and sums are symmetric under the sign flips)
         corr = sfft.irfft2(conj_product_sum(FSc_used, FK), s=(Py, Px), workers=-1)
-        score[it] = np.roll(corr, (Rk, Rk), axis=(0, 1))[:ny, :nx]
+        _rolled_crop_into(score[it], corr, Rk)
     flat = score.ravel()
     top = _top_k(flat, min(len(flat), 20 * n_coarse))
     it_, rem = np.divmod(top, ny * nx)
@@ -488,6 +488,19 @@ def _padded_rfft2(ker: np.ndarray, Py: int, Px: int) -> np.ndarray:
     out = np.zeros(ker.shape[:-2] + (Py, rows.shape[-1]), rows.dtype)
     out[..., : ker.shape[-2], :] = rows
     return sfft.fft(out, axis=-2, workers=-1, overwrite_x=True)
+
+
+def _rolled_crop_into(out: np.ndarray, a: np.ndarray, r: int) -> None:
+    """``out[:] = np.roll(a, (r, r), axis=(0, 1))[:ny, :nx]`` (``(ny, nx) = out.shape``, ``0 <= r``
+    less than ``a``'s sides) by copying the (up to) four blocks it takes, not the whole rolled array."""
+    def parts(n_out: int, n_a: int) -> list[tuple[slice, slice]]:
+        first = min(r, n_out)        # out's first r rows come from a's last r, the rest from its start
+        return [(slice(0, first), slice(n_a - r, n_a - r + first))] + \
+            ([(slice(r, n_out), slice(0, n_out - r))] if n_out > r else [])
+
+    for o_y, a_y in parts(out.shape[0], a.shape[0]):
+        for o_x, a_x in parts(out.shape[1], a.shape[1]):
+            out[o_y, o_x] = a[a_y, a_x]
 
 
 #: at most this much memory (bytes) holds a template's spectra for the next plane (measured: up to

@@ -265,3 +265,19 @@ def test_resting_states_searched_on_two_threads_give_the_starts_of_one():
     for a, b in zip(one, two):
         assert (a.state, a.votes, a.score, a.height_mm) == (b.state, b.votes, b.score, b.height_mm)
         np.testing.assert_array_equal(a.T_table_obj, b.T_table_obj)
+
+
+def test_the_correlations_rolled_crop_is_numpys_roll_and_crop():
+    """The coarse correlation's turn, rolled by the template's radius and cropped to the grid, taken
+    block by block: numpy's roll then crop, for a radius smaller and larger than the grid."""
+    from app.vision.object_pose.search import _rolled_crop_into
+
+    rng = np.random.default_rng(5)
+    for (P, Q), (ny, nx), r in (((64, 50), (40, 30), 7), ((64, 50), (5, 40), 9), ((30, 30), (12, 3), 0),
+                                ((48, 60), (20, 25), 22)):
+        a = rng.normal(size=(P, Q))
+        out = np.zeros((ny, nx), np.float32)
+        _rolled_crop_into(out, a, r)
+        ref = np.zeros((ny, nx), np.float32)
+        ref[:] = np.roll(a, (r, r), axis=(0, 1))[:ny, :nx]
+        np.testing.assert_array_equal(out, ref)
