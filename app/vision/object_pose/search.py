@@ -324,19 +324,15 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         # repeated, ten times faster)
         peak = np.stack([cv2.dilate(sl, np.ones((3, 3), np.uint8)) for sl in score])
         loc = (score == peak) & (score > 0)
-        flat_t = np.where(loc, score, -np.inf).reshape(nt, -1)
-        top_t = np.argpartition(-flat_t, k_t - 1, axis=1)[:, :k_t]
-        it2 = np.repeat(np.arange(nt), k_t)
-        cell = top_t.ravel()
-        good = np.isfinite(flat_t[it2, cell])
-        iy2, ix2 = np.divmod(cell[good], nx)
+        it2, cell = _best_per_row(loc.reshape(nt, -1), score.reshape(nt, -1), k_t)
+        iy2, ix2 = np.divmod(cell, nx)
         ax = np.concatenate([cx, x0 + ix2 * b])
         ay = np.concatenate([cy, y0 + iy2 * b])
-        at = np.concatenate([cth, it2[good] * dth])
+        at = np.concatenate([cth, it2 * dth])
         _, _, _, w_w, w_sel = template(max(3.0 * px_mm, diam / 60.0), 80)
         wide = image_score_wide(ax, ay, at, P[w_sel] + np.array([0.0, 0.0, height_mm]), D[w_sel], w_w,
                                 normals=edge_faces_of(model, rs.T_rest_obj, w_sel))
-        order = np.argsort(-wide)
+        order = np.argsort(-wide, kind="stable")
         keep = _nms(ax[order], ay[order], at[order], 1.5 * b, 1.5 * dth, n_coarse)
         cx, cy, cth = ax[order][keep], ay[order][keep], at[order][keep]
 
@@ -520,32 +516,38 @@ def _kernel_cache(cache: dict, key: tuple) -> list:
     return held[1]
 
 
-def _top_k_partitioned(flat: np.ndarray, k: int) -> np.ndarray:
-    """Indices of the ``k`` largest of ``flat``, largest first: a partition of all, then a sort."""
-    top = np.argpartition(-flat, k - 1)[:k]
-    return top[np.argsort(-flat[top])]
-
-
 def _top_k(flat: np.ndarray, k: int) -> np.ndarray:
-    """:func:`_top_k_partitioned` from the few values above a threshold instead of all (the coarse
-    scores: ~2 million, k = 800; measured 21 -> 1.3 ms on a loaded machine). The threshold is a value
-    that about k / 4 of every 16th value exceed. Where the k + 1 largest are all distinct the answer
-    is unique, and the same; where two are equal (a symmetric part's turns: 32 of the 58 planes of
-    setup_010 with 20 models), which of them comes first is the partition's own choice: that case
-    (and a threshold that let too few through) goes to the partition of all."""
-    if len(flat) <= 8 * k:
-        return _top_k_partitioned(flat, k)
-    sample = flat[::16]
-    thr = np.partition(sample, len(sample) - 1 - k // 4)[len(sample) - 1 - k // 4]
-    cand = np.flatnonzero(flat >= thr)
-    if len(cand) <= k:
-        return _top_k_partitioned(flat, k)
+    """Indices of the ``k`` largest of ``flat``, largest first, equal values in the order of their
+    index: one answer, whatever the partition does with ties (a symmetric part's turns score exactly
+    alike). Taken from the few values above a threshold that about k / 4 of every 16th value exceed
+    (the coarse scores: ~2 million, k = 800; 21 -> 1.3 ms measured on a loaded machine), from all
+    where that lets too few through."""
+    cand = np.arange(len(flat))
+    if len(flat) > 8 * k:
+        sample = flat[::16]
+        thr = np.partition(sample, len(sample) - 1 - k // 4)[len(sample) - 1 - k // 4]
+        above = np.flatnonzero(flat >= thr)
+        if len(above) > k:
+            cand = above
     v = flat[cand]
-    sel = np.argpartition(-v, k)[: k + 1]
-    sel = sel[np.argsort(-v[sel])]
-    if not np.all(v[sel[:-1]] > v[sel[1:]]):
-        return _top_k_partitioned(flat, k)
-    return cand[sel[:k]]
+    if len(cand) > k:
+        kth = np.partition(v, len(v) - k)[len(v) - k]          # the k-th largest value
+        over = np.flatnonzero(v > kth)
+        tied = np.flatnonzero(v == kth)[: k - len(over)]        # the first by index
+        keep = np.sort(np.concatenate([over, tied]))
+        cand, v = cand[keep], v[keep]
+    return cand[np.lexsort((cand, -v))]
+
+
+def _best_per_row(mask: np.ndarray, values: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(row, column) of at most ``k`` entries per row where ``mask`` holds, the largest ``values``
+    first and equal ones in the order of their column; rows in order."""
+    rows, cols = np.nonzero(mask)
+    v = values[rows, cols]
+    order = np.lexsort((cols, -v, rows))
+    rows, cols = rows[order], cols[order]
+    rank = np.arange(len(rows)) - np.searchsorted(rows, rows)     # place within its row
+    return rows[rank < k], cols[rank < k]
 
 
 def _nms(x, y, th, r_xy, r_th, n_max) -> list[int]:

@@ -190,18 +190,38 @@ def test_padded_template_spectra_are_rfft2s():
         assert got.dtype == want.dtype and np.array_equal(got, want)
 
 
-def test_top_k_from_a_threshold_is_the_partitions_answer():
-    """The coarse scores' k best taken from the values above a sampled threshold (:func:`_top_k`)
-    are the partition's of all (:func:`_top_k_partitioned`), in the same order; with equal values
-    among them, which comes first is the partition's choice, so those go to it."""
-    from app.vision.object_pose.search import _top_k, _top_k_partitioned
+def test_top_k_is_the_k_best_largest_first_and_equal_ones_by_index():
+    """The coarse scores' k best (:func:`_top_k`, from the values above a sampled threshold) against
+    a full stable sort: the same indices in the same order, with and without equal values (a
+    symmetric part's turns), whether the threshold lets enough through or not."""
+    from app.vision.object_pose.search import _top_k
 
     rng = np.random.default_rng(5)
-    for n, k in ((2_000_000, 800), (50_000, 800), (5_000, 800), (100_000, 40)):
+    for n, k in ((2_000_000, 800), (50_000, 800), (5_000, 800), (100_000, 40), (900, 900)):
         flat = rng.normal(size=n).astype(np.float32)
-        assert np.array_equal(_top_k(flat, k), _top_k_partitioned(flat, k))
-    tied = np.round(rng.normal(size=200_000), 2).astype(np.float32)      # many equal values
-    assert np.array_equal(_top_k(tied, 800), _top_k_partitioned(tied, 800))
+        assert np.array_equal(_top_k(flat, k), np.argsort(-flat, kind="stable")[:k])
+        tied = np.round(flat, 1)                              # many equal values, at the k-th too
+        assert np.array_equal(_top_k(tied, k), np.argsort(-tied, kind="stable")[:k])
+    flat = np.zeros(100_000, np.float32)
+    flat[::1000] = 1.0                                         # 100 above the threshold, k = 800
+    assert np.array_equal(_top_k(flat, 800), np.argsort(-flat, kind="stable")[:800])
+
+
+def test_best_per_row_takes_each_rows_k_best_of_the_masked_and_equal_ones_by_column():
+    from app.vision.object_pose.search import _best_per_row
+
+    rng = np.random.default_rng(2)
+    values = np.round(rng.normal(size=(7, 300)), 1).astype(np.float32)
+    mask = rng.random((7, 300)) < 0.05
+    mask[3] = False                                            # a row with none
+    rows, cols = _best_per_row(mask, values, 4)
+    want_r, want_c = [], []
+    for r in range(7):
+        c = np.nonzero(mask[r])[0]
+        c = c[np.argsort(-values[r, c], kind="stable")][:4]
+        want_r += [r] * len(c)
+        want_c += list(c)
+    assert rows.tolist() == want_r and cols.tolist() == want_c
 
 
 def test_an_edges_direction_on_a_plane_is_computed_once_per_image_and_is_the_cast_ones():
