@@ -6,9 +6,16 @@ it from there and never copy it into the repo.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+
+# The suite runs on two xdist workers of a 2-core machine beside the LinuxCNC sim, whose simulated probe
+# trips late when the cores are oversubscribed (a touch 0.095 mm long in a run where setup jobs searched
+# on both cores): the services the tests start search on one thread, as the engine does by default;
+# tests/jobs/test_service_jobs.py runs one setup on two (SETUPCAM_SEARCH_THREADS, services/setups.py).
+os.environ.setdefault("SETUPCAM_SEARCH_THREADS", "1")
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 EXTERNAL_DATA = (REPO_ROOT.parent / "shared" / "data" / "external").resolve()

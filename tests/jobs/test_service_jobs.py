@@ -18,6 +18,7 @@ import httpx
 import numpy as np
 import pytest
 
+from app.services.setups import search_threads
 from app.synth.bed_images import bed_camera, render_bed_image, scene_variant
 from tests.support.factories import make_machine
 from tests.support.live_server import live_server, postgres_database, postgres_unavailable_reason
@@ -43,10 +44,12 @@ def sse_events(client: httpx.Client, url: str) -> list[tuple[str, dict]]:
 
 @pytest.mark.slow
 def test_embedded_worker_runs_a_setup_as_a_job_and_the_pages_answer_meanwhile(tmp_path):
-    """One localisation (about 20 s of CPU) as a job of the service's own worker: its events stream to the
-    end, it ends located, and all the while (at a lower priority) the service keeps answering."""
-    with live_server(tmp_path / "data") as srv, srv.client() as c:
+    """One localisation (about 20 s of CPU) as a job of the service's own worker, its plane search on two
+    threads (a 2-core panel PC's share for one job): its events stream to the end, it ends located, and
+    all the while (at a lower priority) the service keeps answering."""
+    with live_server(tmp_path / "data", search_threads=2) as srv, srv.client() as c:
         assert srv.settings.embedded_worker and srv.app.state.engine.dialect.name == "sqlite"
+        assert search_threads(srv.settings) == 2
         machine_id, bracket = sample_machine(c)
         accepted = start_setup(c, machine_id, bracket)
         assert accepted["job_url"] == f"/api/v1/jobs/{accepted['job_id']}"

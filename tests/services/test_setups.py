@@ -9,6 +9,7 @@ from app.services.setups import search_threads
 
 
 def test_a_setup_job_searches_on_its_share_of_the_cores_or_as_told(monkeypatch):
+    monkeypatch.delenv("SETUPCAM_SEARCH_THREADS", raising=False)     # the suite's own (tests/conftest.py)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
     assert search_threads(Settings(workers=1)) == 4            # one job at a time: every core
     assert search_threads(Settings(workers=2)) == 2

@@ -39,9 +39,11 @@ class ServiceProcess:
 
 
 def clean_env(**extra: str) -> dict[str, str]:
-    """This process's environment without anything that points the service elsewhere, plus ``extra``."""
+    """This process's environment without anything that points the service elsewhere, plus ``extra``
+    (``SETUPCAM_SEARCH_THREADS`` stays: how much of the machine a job takes, tests/conftest.py)."""
     env = {k: v for k, v in os.environ.items()
-           if not (k.startswith("SETUPCAM_") or k in ("DATABASE_URL", "PYTHONPATH", "PYTHONHOME"))}
+           if not ((k.startswith("SETUPCAM_") and k != "SETUPCAM_SEARCH_THREADS")
+                   or k in ("DATABASE_URL", "PYTHONPATH", "PYTHONHOME"))}
     env.update(extra)
     return env
 
