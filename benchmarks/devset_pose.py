@@ -451,12 +451,13 @@ def clamp_report(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def _cores() -> int:
+def _cores_per_job(jobs: int) -> int:
+    """The service's rule (``blas_threads.cores_per_job``); 1 for a checkout from before it (SETUPCAM_CODE)."""
     try:
-        from app.vision.blas_threads import available_cores
-    except ImportError:          # a checkout from before it (SETUPCAM_CODE)
+        from app.vision.blas_threads import cores_per_job
+    except ImportError:
         return 1
-    return available_cores()
+    return cores_per_job(jobs)
 
 
 def _job(args):
@@ -493,7 +494,7 @@ def main(argv=None) -> int:
         global RISERS
         RISERS = False           # read by the workers, which fork after this
     global THREADS               # the service's rule (services.setups.search_threads): cores per job
-    THREADS = max(1, _cores() // max(a.jobs, 1))
+    THREADS = _cores_per_job(a.jobs)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     methods = a.methods.split(",")

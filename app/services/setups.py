@@ -29,7 +29,7 @@ from app.store.db import session_scope
 from app.store.files import FileStore
 from app.store.models import Capture, Job, LibraryModel, Setup, utcnow
 from app.vision import object_pose
-from app.vision.blas_threads import available_cores
+from app.vision.blas_threads import cores_per_job
 from app.vision.fiducials import locate_table
 from app.vision.image_header import ImageHeaderError, image_size
 from app.vision.intrinsics import intrinsics_sigma
@@ -247,9 +247,7 @@ def search_threads(settings) -> int:
     """Threads a setup job's plane search may use: ``SETUPCAM_SEARCH_THREADS``, or where that is 0
     the cores this process may run on shared among the jobs it runs at once (``SETUPCAM_WORKERS``):
     one job on a 2-core panel PC gets both, the operator waits a fifth to a third less."""
-    if settings.search_threads:
-        return int(settings.search_threads)
-    return max(1, available_cores() // max(int(settings.workers), 1))
+    return int(settings.search_threads) if settings.search_threads else cores_per_job(settings.workers)
 
 
 def run_setup_job(run: JobRun, setup_id: int) -> Outcome:

@@ -34,3 +34,8 @@ def available_cores() -> int:
     if hasattr(os, "sched_getaffinity"):
         return max(1, len(os.sched_getaffinity(0)))
     return max(1, os.cpu_count() or 1)
+
+
+def cores_per_job(jobs: int = 1) -> int:
+    """Threads each of ``jobs`` jobs run at once may use: this process's cores shared out, at least one."""
+    return max(1, available_cores() // max(int(jobs), 1))

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -39,6 +39,11 @@ class Hyp:
     source: str = "plane"           # "plane": the plane search; "clamped": between located jaws
 
 
+#: edge-direction channels of the coarse correlation (pi / 4 wide each, an edge counted in the two
+#: nearest)
+COARSE_CHANNELS = 4
+
+
 @dataclass(frozen=True, eq=False)
 class EdgeRays:
     """Subsampled edge pixels of one image as rays in the table frame (``r0``; ``r1`` through the
@@ -47,25 +52,25 @@ class EdgeRays:
 
     Cast onto the plane z, an edge runs along ``lam1 r1 - lam0 r0`` with ``lam = (z - C_z) / r_z``,
     that is ``(z - C_z) (r1 / r1_z - r0 / r0_z)``: the same direction on every plane (mod pi), so it
-    is computed once per image (``phi``, rad mod pi), not once per plane searched."""
+    is computed once per image (``phi``, rad mod pi), and so are its channels (``channel_bits``: bit k
+    set when it lies within one channel width of channel k's centre, (k + 0.5) pi / COARSE_CHANNELS),
+    not once per plane searched."""
 
     idx: np.ndarray
     r0: np.ndarray
     r1: np.ndarray
     phi: np.ndarray
-    _channels: dict = field(default_factory=dict, repr=False)
+    channel_bits: np.ndarray
 
-    def channel_bits(self, n_channels: int) -> np.ndarray:
-        """Per edge, bit k set when its direction lies within one channel width of channel k's
-        centre ((k + 0.5) pi / n_channels): the channels of :func:`_support_maps`, once per image."""
-        if n_channels not in self._channels:
-            ch_w = np.pi / n_channels
-            bits = np.zeros(len(self.phi), np.uint32)
-            for k in range(n_channels):
-                dphi = np.abs(np.mod(self.phi - (k + 0.5) * ch_w + np.pi / 2, np.pi) - np.pi / 2)
-                bits |= (dphi <= ch_w).astype(np.uint32) << np.uint32(k)
-            self._channels[n_channels] = bits
-        return self._channels[n_channels]
+
+def _channel_bits(phi: np.ndarray, n_channels: int = COARSE_CHANNELS) -> np.ndarray:
+    """:attr:`EdgeRays.channel_bits` of directions ``phi`` (rad, mod pi)."""
+    ch_w = np.pi / n_channels
+    bits = np.zeros(len(phi), np.uint32)
+    for k in range(n_channels):
+        dphi = np.abs(np.mod(phi - (k + 0.5) * ch_w + np.pi / 2, np.pi) - np.pi / 2)
+        bits |= (dphi <= ch_w).astype(np.uint32) << np.uint32(k)
+    return bits
 
 
 def _edge_rays_table(eimg: EdgeImage, K, dist, T_table_cam, max_edges: int, rng) -> EdgeRays | None:
@@ -83,7 +88,8 @@ def _edge_rays_table(eimg: EdgeImage, K, dist, T_table_cam, max_edges: int, rng)
     r0, r1 = rays[: len(idx)], rays[len(idx):]
     with np.errstate(divide="ignore", invalid="ignore"):   # rays along the plane: no direction on it
         d = r1[:, :2] / r1[:, 2:3] - r0[:, :2] / r0[:, 2:3]
-    return EdgeRays(idx, r0, r1, np.mod(np.arctan2(d[:, 1], d[:, 0]), np.pi))
+    phi = np.mod(np.arctan2(d[:, 1], d[:, 0]), np.pi)
+    return EdgeRays(idx, r0, r1, phi, _channel_bits(phi))
 
 
 def _levels(m_z: np.ndarray, w: np.ndarray | None = None, max_levels: int = 4,
@@ -110,9 +116,9 @@ def _levels(m_z: np.ndarray, w: np.ndarray | None = None, max_levels: int = 4,
     return [(float(h), np.nonzero(close & (near == i))[0]) for i, h in enumerate(heights)]
 
 
-def _plane_edges(rays: EdgeRays, C, z: float, extent_xy, b: float, n_channels: int):
+def _plane_edges(rays: EdgeRays, C, z: float, extent_xy, b: float):
     """Image edge pixels cast onto the horizontal plane z (table frame) on a grid of b mm: grid size
-    (nx, ny), cell indices (ix, iy) and channel bits (:meth:`EdgeRays.channel_bits`) of the edges
+    (nx, ny), cell indices (ix, iy) and channel bits (:attr:`EdgeRays.channel_bits`) of the edges
     that fall inside the grid."""
     x0, x1, y0, y1 = extent_xy
     nx = int(np.ceil((x1 - x0) / b)) + 1
@@ -124,14 +130,15 @@ def _plane_edges(rays: EdgeRays, C, z: float, extent_xy, b: float, n_channels: i
     ix = np.floor((p0[:, 0] - x0) / b + 0.5).astype(np.int64)
     iy = np.floor((p0[:, 1] - y0) / b + 0.5).astype(np.int64)
     inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-    return nx, ny, ix[inside], iy[inside], rays.channel_bits(n_channels)[ok][inside]
+    return nx, ny, ix[inside], iy[inside], rays.channel_bits[ok][inside]
 
 
-def _support_maps(rays: EdgeRays, C, z: float, extent_xy, b: float, n_channels: int, tau_bins: float):
-    """Edge support on the plane z: (n_channels, ny, nx) in [0, 1], 1 on an edge of that direction."""
-    nx, ny, ix, iy, bits = _plane_edges(rays, C, z, extent_xy, b, n_channels)
-    sup = np.zeros((n_channels, ny, nx), np.float32)
-    for k in range(n_channels):
+def _support_maps(rays: EdgeRays, C, z: float, extent_xy, b: float, tau_bins: float):
+    """Edge support on the plane z: (COARSE_CHANNELS, ny, nx) in [0, 1], 1 on an edge of that
+    direction."""
+    nx, ny, ix, iy, bits = _plane_edges(rays, C, z, extent_xy, b)
+    sup = np.zeros((COARSE_CHANNELS, ny, nx), np.float32)
+    for k in range(COARSE_CHANNELS):
         m = (bits & np.uint32(1 << k)) != 0   # channel k holds edges within one channel width
         img = np.full((ny, nx), 255, np.uint8)
         img[iy[m], ix[m]] = 0
@@ -140,9 +147,10 @@ def _support_maps(rays: EdgeRays, C, z: float, extent_xy, b: float, n_channels: 
     return sup
 
 
-#: resting states whose planes are searched at the same time, each on its own thread, unless the
-#: caller gives more (the service gives each job its share of the cores: SETUPCAM_SEARCH_THREADS).
-#: The compiled scorer, the FFTs and OpenCV's transforms let go of Python's lock: on two idle cores
+#: threads of the plane search by default, each searching one resting state's planes: one, as the
+#: engine keeps to one core unless its caller gives it more (the service gives each job its share of
+#: the cores, SETUPCAM_SEARCH_THREADS; the CLI all of them). The compiled scorer, the FFTs and
+#: OpenCV's transforms let go of Python's lock: on two idle cores
 #: two threads take the plane search's wall clock down by a fifth to a third (devset setup_010 and 034:
 #: 6.0 -> 4.3 s and 17 -> 13.5 s per image); on cores that are busy anyway they cost about 10 % more
 #: CPU (all 40 devset scenes two at a time). Every result is the same.
@@ -255,11 +263,11 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     dth = min(np.radians(9.0), 1.5 * b / max(0.5 * diam, 1e-6))
     nt = 1 if round_part else int(np.ceil(2 * np.pi / dth))
     dth = 2 * np.pi / nt
-    nch = 4
+    nch = COARSE_CHANNELS
     ch_w = np.pi / nch
     m_xy, m_phi, m_z, wts, _ = template(b / 2, max_template, only=coarse_from)
     levels = _levels(m_z, wts, max_levels=6, gap_mm=0.5 * b)
-    support = [_support_maps(rays, C, z_l, extent_xy, b, nch, 1.5) for z_l, _ in levels]
+    support = [_support_maps(rays, C, z_l, extent_xy, b, 1.5) for z_l, _ in levels]
     # support relative to its surroundings (about half the part's size): textured or busy areas,
     # where every direction has edges everywhere, no longer outscore the part's own outline
     hp = int(np.clip(2 * round(0.25 * diam / b) + 1, 3, 15))

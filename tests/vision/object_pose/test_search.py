@@ -247,12 +247,12 @@ def test_an_edges_direction_on_a_plane_is_computed_once_per_image_and_is_the_cas
         p0 = C[:2] + lam0[ok, None] * rays.r0[ok, :2]
         ix = np.floor((p0[:, 0] - ext[0]) / b + 0.5).astype(np.int64)
         iy = np.floor((p0[:, 1] - ext[2]) / b + 0.5).astype(np.int64)
-        nx, ny, gx, gy, bits = _plane_edges(rays, C, z, ext, b, nch)
+        nx, ny, gx, gy, bits = _plane_edges(rays, C, z, ext, b)
         inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
         assert inside.sum() > 1000
         np.testing.assert_array_equal(gx, ix[inside])
         np.testing.assert_array_equal(gy, iy[inside])
-        sup = _support_maps(rays, C, z, ext, b, nch, 1.5)
+        sup = _support_maps(rays, C, z, ext, b, 1.5)
         for k in range(nch):
             dphi = np.abs(np.mod(phi[inside] - (k + 0.5) * ch_w + np.pi / 2, np.pi) - np.pi / 2)
             np.testing.assert_array_equal((bits & (1 << k)) != 0, dphi <= ch_w)
@@ -261,7 +261,7 @@ def test_an_edges_direction_on_a_plane_is_computed_once_per_image_and_is_the_cas
             ref = np.clip(1.0 - cv2.distanceTransform(img, cv2.DIST_L2, 3) / 1.5, 0.0, 1.0)
             np.testing.assert_array_equal(sup[k], ref.astype(np.float32))
     # a plane above the camera: its rays are the other ones, left out where they miss it
-    _, _, gx, _, _ = _plane_edges(rays, C, C[2] + 100.0, ext, b, nch)
+    _, _, gx, _, _ = _plane_edges(rays, C, C[2] + 100.0, ext, b)
     assert len(gx) == 0
 
 
