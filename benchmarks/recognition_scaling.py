@@ -61,18 +61,21 @@ def main() -> int:
     import trimesh
 
     from app.synth.devset import devset_scene
+    from app.vision.pose_errors import pose_error_6dof
     from app.vision.localize import Candidate, localize
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", default="5,20,50,200")
-    ap.add_argument("--scenes", default="setup_010,setup_030")
+    ap.add_argument("--scenes", default="setup_010,setup_030", help="comma-separated scene ids, or all")
     ap.add_argument("--out", default="var/recognition_scaling.json")
     ap.add_argument("--threads", type=int, default=1,
                     help="threads of each plane search (localize's search_threads; the service: its cores per job)")
+    ap.add_argument("--fixtures", action="store_true",
+                    help="put the scene's fixtures (vise, parallels, clamps) in the library as well")
     a = ap.parse_args()
     sizes = [int(v) for v in a.sizes.split(",")]
     man = json.loads((DEVSET / "manifest.json").read_text())
-    entries = [e for e in man["families"]["setup"] if e["scene_id"] in a.scenes.split(",")]
+    entries = [e for e in man["families"]["setup"] if a.scenes == "all" or e["scene_id"] in a.scenes.split(",")]
     rows = []
     for entry in entries:
         sc = devset_scene(DEVSET, entry)
@@ -80,20 +83,38 @@ def main() -> int:
         wp = sc.workpiece
         target = Candidate(wp["name"], trimesh.load(DEVSET / wp["mesh"], force="mesh"), kind="workpiece")
         others = [Candidate(n, m, kind="workpiece") for n, m in distractors(entry["workpiece"])]
+        # --fixtures: the scene's vise, parallels and clamps are in the library too, as in a shop's
+        # (the service recognises among every workpiece, clamp and support); they are not counted in N
+        fixtures = list(sc.fixture_candidates) if a.fixtures else []
         t = time.perf_counter()
         pool = [target] + others[: max(sizes) - 1]
-        for c in pool + [sc.table_candidate]:
+        for c in pool + fixtures + [sc.table_candidate]:
             c.prepare()
         prep_s = time.perf_counter() - t
         for n in sizes:
             lib = pool[:n]
             t, cpu = time.perf_counter(), time.process_time()
             kw = {"search_threads": a.threads} if "search_threads" in inspect.signature(localize).parameters else {}
-            res = localize(image, sc.K, sc.dist, sc.layout, lib, recognise=True, table_model=sc.table_candidate, **kw)
+            res = localize(image, sc.K, sc.dist, sc.layout, lib + fixtures, recognise=True, table_model=sc.table_candidate, **kw)
             dt, cpu_s = time.perf_counter() - t, time.process_time() - cpu
             names = [o["name"] for o in res.objects]
-            row = {"scene": entry["scene_id"], "n": n, "threads": kw.get("search_threads", 1), "s": dt, "cpu_s": cpu_s, "accepted": names, "right": wp["name"] in names,
-                   "wrong": [x for x in names if x != wp["name"]], "prep_s_all": prep_s}
+            fixture_names = {c.name for c in fixtures}
+            row = {"scene": entry["scene_id"], "mode": entry["fixture_mode"], "n": n, "fixtures": sorted(fixture_names),
+                   "threads": kw.get("search_threads", 1), "s": dt, "cpu_s": cpu_s, "accepted": names,
+                   "right": wp["name"] in names, "wrong": [x for x in names if x != wp["name"] and x not in fixture_names],
+                   # wrong and let through by the export gate (its sigma within tolerance)
+                   "wrong_passed": [o["name"] for o in res.objects
+                                    if o["name"] != wp["name"] and o["name"] not in fixture_names
+                                    and o.get("uncertainty_ok")],
+                   "objects": [{"name": o["name"], "score": o["score"], "pass": bool(o.get("uncertainty_ok")),
+                                "T_table_obj": o["T_table_obj"]} for o in res.objects],
+                   "prep_s_all": prep_s}
+            got = next((o for o in res.objects if o["name"] == wp["name"]), None)
+            if got is not None:       # the right name at the right place? (1 mm, 0.5 deg as the devset's)
+                e = pose_error_6dof(np.asarray(got["T_table_obj"]), np.asarray(wp["T_table_object"]),
+                                    target.prepare())
+                row["err"] = [float(v) for v in e]
+                row["right_place"] = bool(np.linalg.norm(e[:3]) <= 1.0 and np.nanmax(np.abs(e[3:])) <= 0.5)
             rows.append(row)
             print(json.dumps(row), flush=True)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)

@@ -230,12 +230,13 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     table_cov = table.frame_error()     # its error (and the intrinsics') enters every object's sigma
 
     known = ((table_model.prepare(), np.eye(4)),) if table_model is not None else ()
+    table_top = _table_top(known)
     labels = marker_labels_table(table_layout)
     photo_view = None
     if any(c.photo is not None for c in candidates):   # the picture as photo models see it
         photo_view = View.of(image, K, dist, table, known_edge_mask(image.shape[:2], K, dist, T_cam_table,
                                                                     list(known), labels))
-    table_xy = _table_xy(table_model, table_layout)
+    table_xy = _table_xy(table_top, table_layout)
     edges = _edges_once(image, table.gamma)
     # --- objects: clamps first (they occlude the workpiece), then workpieces
     ordered = sorted(candidates, key=lambda c: 0 if c.kind == "clamp" else 1)
@@ -253,7 +254,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                         height_offsets_mm=height_offsets_mm, known_models=known,
                                         free_height=free_height, known_regions=labels,
                                         table_covariance=table_cov, gamma=table.gamma,
-                                        search_threads=search_threads)
+                                        search_threads=search_threads, table_extent_xy=table_top)
             accepted += list(rec.accepted)
             ranked += list(rec.ranked)
             if not rec:
@@ -295,7 +296,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                                  occluder_models=occluders, min_score=min_score,
                                                  min_margin=min_margin, height_offsets_mm=height_offsets_mm,
                                                  known_models=known, free_height=free_height, known_regions=labels,
-                                                 search_threads=search_threads, **kind_options(cand.kind))
+                                                 table_extent_xy=table_top, search_threads=search_threads,
+                                                 **kind_options(cand.kind))
             _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table)
     for i, (cand, pose) in enumerate(located):
         objects.append(object_entry(cand, pose, COLOURS[i % len(COLOURS)]))
@@ -335,12 +337,21 @@ def _report(cand, pose, ms, located, not_found, done, image, K, dist, table, cha
                draw_overlay(image, K, dist, table, [(cand, pose)])))
 
 
-def _table_xy(table_model: Candidate | None, layout: dict) -> tuple[float, float, float, float]:
+def _table_top(known) -> tuple[float, float, float, float] | None:
+    """(x_lo, x_hi, y_lo, y_hi) of the table model's top (mm, table frame), the first of ``known``;
+    None without a table model. Parts stand on it: the floor around it, or a tool seen beyond its
+    back edge, is not searched."""
+    if not known:
+        return None
+    b = known[0][0].mesh.bounds
+    return float(b[0, 0]), float(b[1, 0]), float(b[0, 1]), float(b[1, 1])
+
+
+def _table_xy(table_top, layout: dict) -> tuple[float, float, float, float]:
     """(x_lo, x_hi, y_lo, y_hi) of the table top (mm, table frame) where photo models are searched: the
-    table model's extent, else the markers' (grown by 100 mm)."""
-    if table_model is not None:
-        b = table_model.mesh.bounds
-        return float(b[0, 0]), float(b[1, 0]), float(b[0, 1]), float(b[1, 1])
+    table model's extent (``table_top``), else the markers' (grown by 100 mm)."""
+    if table_top is not None:
+        return table_top
     from app.vision.fiducials import marker_corners_table_mm
 
     c = np.vstack([marker_corners_table_mm(m) for m in layout.get("markers", [])] or [np.zeros((1, 3))])
@@ -433,10 +444,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
     seats = [table_surface()]            # where fixtures may stand (every upward face: a jaw rides a rail)
     jaw_faces: list = []                 # vertical faces of the located fixtures (clamping.fixture_faces)
     # everything in the chain stands on the table: search its top, not the floor around it
-    table_xy = None
-    if known:
-        b = known[0][0].mesh.bounds
-        table_xy = (float(b[0, 0]), float(b[1, 0]), float(b[0, 1]), float(b[1, 1]))
+    table_xy = _table_top(known)
     fixtures = _carriers_first(sorted([c for c in ordered if c.kind in FIXTURE_KINDS],
                                       key=lambda c: -float(np.linalg.norm(c.mesh.extents))))
     parts = [c for c in ordered if c.kind not in FIXTURE_KINDS]

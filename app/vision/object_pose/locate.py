@@ -35,6 +35,7 @@ from app.vision.object_pose.refine import edge_support, refine_pose
 from app.vision.object_pose.results import ObjectFailure, ObjectPose
 from app.vision.object_pose.search import (
     Hyp,
+    centre_extent,
     find_starts,
     search_planes,
     searched_states,
@@ -347,9 +348,8 @@ def _find(ctx: LocateContext, start_poses, table_extent_xy, start_capture=None):
     if start_poses is not None:
         capture = {} if start_capture is None else dict(zip(("capture_mm", "capture_deg"), map(float, start_capture)))
         return starts_from_poses(ctx.model, start_poses, ctx.T_cam_table, ctx.K, ctx.dist, ctx.eimg, **capture)
-    o, half = ctx.opts, 0.5 * ctx.model.diameter_mm
-    extent = None if table_extent_xy is None else (table_extent_xy[0] - half, table_extent_xy[1] + half,
-                                                   table_extent_xy[2] - half, table_extent_xy[3] + half)
+    o = ctx.opts
+    extent = centre_extent(table_extent_xy, ctx.model.diameter_mm)
     found = find_starts(ctx.eimg, ctx.K, ctx.dist, ctx.T_cam_table, ctx.model, height_offsets_mm=o.height_offsets_mm,
                         resting_states=o.resting_states, n_starts=o.n_starts, n_planar=o.n_planar,
                         n_coarse=o.n_coarse, coarse_step_max_mm=o.coarse_step_max_mm,

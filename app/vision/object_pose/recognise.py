@@ -14,7 +14,7 @@ from app.vision.blas_threads import one_blas_thread
 from app.vision.object_pose.edge_image import mask_known_edges, mask_table_regions, prepare_image
 from app.vision.object_pose.locate import locate_object
 from app.vision.object_pose.results import ObjectFailure, ObjectPose, Recognition
-from app.vision.object_pose.search import find_starts
+from app.vision.object_pose.search import centre_extent, find_starts
 
 
 @one_blas_thread
@@ -25,6 +25,9 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     Every candidate goes through the search and the planar fit (stages 1 and 2 of
     :func:`locate_object`); the ``n_full`` best by that coarse score are located completely and
     ranked by their verification score, the others keep their coarse score ("coarse only").
+    ``table_extent_xy`` (x0, x1, y0, y1 mm, in ``locate_kw``): the table top, where a part's centre is
+    searched (grown by half its size); without it, wherever image edges meet the plane (a tool
+    over the table's back edge, seen beyond it, would be searched too).
     A candidate is accepted when its score reaches ``min_score`` and no other candidate at the same
     place (centres closer than half the larger diameter) explains clearly more image edges
     (``supported_edge_px`` 25 % higher) or, explaining about as much, scores within ``min_margin``.
@@ -46,9 +49,11 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
                  if k in locate_kw}
     if "search_threads" in locate_kw:
         search_kw["threads"] = locate_kw["search_threads"]
+    table_xy = locate_kw.get("table_extent_xy")
     coarse = []
     for m in candidates:
-        found = find_starts(eimg, K, dist, T_cam_table, m, **search_kw)
+        found = find_starts(eimg, K, dist, T_cam_table, m, table_extent_xy=centre_extent(table_xy, m.diameter_mm),
+                            **search_kw)
         coarse.append(0.0 if isinstance(found, str) or not found[0] else float(found[0][0].score))
     order = np.argsort(-np.asarray(coarse), kind="stable")
     res = []

@@ -14,6 +14,7 @@ from app.geometry.transforms import inv, pose_from_xyz_euler
 from app.synth.scene import Scene, SceneObject, look_at_pose, place_on_table, render_scene
 from app.synth.table import box_table_layout, box_table_mesh
 from app.vision.localize import marker_labels_table
+from app.vision.object_pose.search import centre_extent
 from app.vision.object_pose import (ObjectFailure, ObjectPose, draw_object, locate_object, mask_known_edges,
                                     mask_table_regions, prepare_image, recognise)
 
@@ -188,6 +189,17 @@ def test_recognition_accepts_the_part_and_refuses_absent_ones(models, clamped):
     assert rec and rec.best.model_name == "bracket_140"
     assert [d["model"] for d in rec.ranked][0] == "bracket_140"
     assert all(p.model_name == "bracket_140" for p in rec.accepted)
+    # told where the table top is, it searches a part's centre there (grown by half its size) and
+    # nowhere else: the bracket (at x = 400) on a "table" that ends at x = 200 is not there
+    on_top = recognise(r.image, K, DIST, scene.T_cam_table, cands, gamma=scene.gamma, known_regions=labels,
+                       table_extent_xy=(0.0, 800.0, 0.0, 400.0))
+    assert [p.model_name for p in on_top.accepted] == [p.model_name for p in rec.accepted]
+    cut = recognise(r.image, K, DIST, scene.T_cam_table, [models["bracket_140"]], gamma=scene.gamma,
+                    known_regions=labels, table_extent_xy=(0.0, 200.0, 0.0, 400.0))
+    assert not cut.accepted
+    half = 0.5 * models["bracket_140"].diameter_mm
+    assert centre_extent((0.0, 200.0, 0.0, 400.0), 2 * half) == (-half, 200.0 + half, -half, 400.0 + half)
+    assert centre_extent(None, 50.0) is None
     rec2 = recognise(r.image, K, DIST, scene.T_cam_table, [models["pin_block_32"], models["flange_plate_80"]],
                      gamma=scene.gamma, known_regions=labels)
     assert not rec2 and rec2.best is None
