@@ -416,3 +416,21 @@ def test_intrinsics_off_by_a_calibration_error_stay_within_the_stated_sigma():
     np.testing.assert_allclose(err_exact, err, atol=1e-9)            # the same fit, another sigma
     assert not _within_3_sigma(exact, err_exact), (err_exact, exact["sigma"])
     assert np.all(np.asarray(exact["cov6_intrinsics"]) == 0)
+
+
+def test_recognition_locates_the_fixtures_first_and_finds_the_part_in_the_vise():
+    """Recognition (no model named) on a vise scene: the library's vise is located first, as in the
+    chain; the part is then recognised on its seat, and a 32 mm block does not take the vise's edges."""
+    from app.geometry import parts
+
+    sc, image, wp = _scene("setup_011")         # the flange in the vise, on parallels
+    block = Candidate("pin_block_32", parts.pin_block_32())
+    res = localize(image, sc.K, sc.dist, sc.layout, [wp, block] + sc.fixture_candidates,
+                   table_model=sc.table_candidate, recognise=True, riser_heights_mm=SHOP_PARALLELS)
+    assert res.ok, res.reason
+    names = [o["name"] for o in res.objects]
+    assert "vise_body" in names and wp.name in names and block.name not in names, names
+    obj = next(o for o in res.objects if o["name"] == wp.name)
+    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"]), wp.prepare())
+    assert np.linalg.norm(err[:3]) < 1.0 and np.nanmax(np.abs(err[3:])) < 0.5, err
+    assert [s.name for s in res.stages][:3] == ["table markers", "locate vise_body", "locate vise_jaw"]
