@@ -160,14 +160,10 @@ SEARCH_THREADS = 1
 COARSE_STEP_MAX_MM = 16.0
 
 
-#: the plane search's coarse cells across the part's diameter
-COARSE_CELLS = 18.0
-
-
-def coarse_cell_mm(diameter_mm: float, max_mm: float = COARSE_STEP_MAX_MM, cells: float = COARSE_CELLS) -> float:
-    """The plane search's coarse cell (mm): the part's size / ``cells``, at least 1.5 mm, at most
-    ``max_mm`` (the wide and mid scorers reach as far as this cell is coarse)."""
-    return float(np.clip(diameter_mm / cells, 1.5, max(1.5, max_mm)))
+def coarse_cell_mm(diameter_mm: float, max_mm: float = COARSE_STEP_MAX_MM) -> float:
+    """The plane search's coarse cell (mm): the part's size / 18, at least 1.5 mm, at most ``max_mm``
+    (the wide and mid scorers reach as far as this cell is coarse)."""
+    return float(np.clip(diameter_mm / 18.0, 1.5, max(1.5, max_mm)))
 
 
 def local_maxima_per_turn(width_mm: float, depth_mm: float, diameter_mm: float) -> int:
@@ -211,8 +207,7 @@ def edge_faces_of(model: PreparedModel, T_rest_obj: np.ndarray, sel: np.ndarray)
 def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, extent_xy,
                   n_peaks: int, *, px_mm: float, image_score, max_template: int = 400, n_coarse: int = 40,
                   cache: dict | None = None, image_score_wide=None, image_score_mid=None,
-                  coarse_step_max_mm: float = COARSE_STEP_MAX_MM, keep_spectra: bool = True,
-                  coarse_cells: float = COARSE_CELLS) -> list[Hyp]:
+                  coarse_step_max_mm: float = COARSE_STEP_MAX_MM, keep_spectra: bool = True) -> list[Hyp]:
     """Exhaustive oriented chamfer matching of the model's horizontal edges on the table planes.
 
     The image's edge pixels are cast onto each horizontal plane that carries model edges (height
@@ -261,7 +256,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         return P[sel, :2], np.arctan2(D[sel, 1], D[sel, 0]), P[sel, 2] + height_mm, w, sel
 
     # ---- coarse: correlation per theta
-    b = coarse_cell_mm(diam, coarse_step_max_mm, coarse_cells)
+    b = coarse_cell_mm(diam, coarse_step_max_mm)
     b = max(b, max(x1 - x0, y1 - y0) / 250.0)
     nx = int(np.ceil((x1 - x0) / b)) + 1
     ny = int(np.ceil((y1 - y0) / b)) + 1
@@ -612,8 +607,7 @@ def centre_extent(table_extent_xy, diameter_mm: float):
 def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, height_offsets_mm=(0.0,),
             resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10,
             max_edges: int = 60000, rng=None, timings: dict | None = None, table_extent_xy=None,
-            n_coarse: int = 40, coarse_step_max_mm: float = COARSE_STEP_MAX_MM, threads: int = SEARCH_THREADS,
-            coarse_cells: float = COARSE_CELLS):
+            n_coarse: int = 40, coarse_step_max_mm: float = COARSE_STEP_MAX_MM, threads: int = SEARCH_THREADS):
     """Stages 1 and 2: starts from the plane search, aligned in the table plane, best first.
     ``table_extent_xy`` (x0, x1, y0, y1 mm): where the part's centre can be (the table and a margin);
     the floor and the machine's walls in the background are not searched. ``threads``: resting
@@ -622,7 +616,7 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
     timings = {} if timings is None else timings
     memo = ("search", id(model), T_cam_table.tobytes(), tuple(height_offsets_mm),
             None if resting_states is None else tuple(resting_states), min_state_probability, n_starts, n_planar,
-            n_coarse, coarse_step_max_mm, coarse_cells,
+            n_coarse, coarse_step_max_mm,
             None if table_extent_xy is None else tuple(table_extent_xy))
     if memo in eimg.cache:              # same image, model and table pose: reuse (recognition)
         timings.setdefault("search", 0.0)
@@ -655,7 +649,7 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
     states = searched_states(model, resting_states, min_state_probability)
     hyps: list[Hyp] = []
     scorer = _image_scorer(eimg, K, dist, T_cam_table)
-    b_px = coarse_cell_mm(model.diameter_mm, coarse_step_max_mm, coarse_cells) / max(px_mm, 1e-9)
+    b_px = coarse_cell_mm(model.diameter_mm, coarse_step_max_mm) / max(px_mm, 1e-9)
     scorer_wide = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(1.2 * b_px, 3.0, 20.0)))
     scorer_mid = _image_scorer(eimg, K, dist, T_cam_table, tau_px=float(np.clip(0.6 * b_px, 2.5, 10.0)))
     planes = []
@@ -677,7 +671,7 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
                 for hyp in _plane_search(model, st, h, rays, C, ext, n_starts, px_mm=px_mm, n_coarse=n_coarse,
                                          image_score=scorer, cache=spectra, image_score_wide=scorer_wide,
                                          image_score_mid=scorer_mid, coarse_step_max_mm=coarse_step_max_mm,
-                                         keep_spectra=keep_spectra, coarse_cells=coarse_cells)]
+                                         keep_spectra=keep_spectra)]
 
     if threads > 1 and len(states) > 1:
         with ThreadPoolExecutor(min(threads, len(states))) as pool:
