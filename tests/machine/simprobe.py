@@ -17,7 +17,9 @@ With ``rotary`` the boxes are given as they lie at C = 0 and turn with the table
 +Z (the XYZC sim's table turns right-handed about +Z for positive C).
 
 A missing or empty file means nothing to touch (``probe`` stays false), so the sim runs every other
-test unchanged. Runs under the system Python that has LinuxCNC's ``hal`` module; standard library only.
+test unchanged. Polled from user space, the probe trips a little late on a loaded machine: at every
+trip it appends how far the ball already is inside the part (mm) to ``simprobe_trips.txt`` beside
+PART.json (``x y z depth``), so that a test can tell its own lateness from a program's error. Runs under the system Python that has LinuxCNC's ``hal`` module; standard library only.
 """
 
 import json
@@ -51,8 +53,11 @@ def turned(boxes, rotary, r_deg):
     return out
 
 
-def touches(x, y, z, r, boxes):
+def depth(x, y, z, r, boxes):
+    """How far (mm) the ball of radius ``r`` whose lowest point is at (x, y, z) reaches into the
+    nearest box (r minus the distance from its centre to the box), or None when it touches none."""
     cz = z + r  # ball centre
+    best = None
     for b in boxes:
         c, s = math.cos(math.radians(b["yaw_deg"])), math.sin(math.radians(b["yaw_deg"]))
         dx, dy = x - b["centre_xy"][0], y - b["centre_xy"][1]
@@ -60,9 +65,10 @@ def touches(x, y, z, r, boxes):
         qx = max(abs(lx) - b["half_xy"][0], 0.0)
         qy = max(abs(ly) - b["half_xy"][1], 0.0)
         qz = max(b["z0"] - cz, cz - b["z1"], 0.0)
-        if qx * qx + qy * qy + qz * qz <= r * r:
-            return True
-    return False
+        d2 = qx * qx + qy * qy + qz * qz
+        if d2 <= r * r:
+            best = max(best or 0.0, r - math.sqrt(d2))
+    return best
 
 
 def main():
@@ -72,6 +78,7 @@ def main():
         h.newpin(axis, hal.HAL_FLOAT, hal.HAL_IN)
     h.newpin("probe", hal.HAL_BIT, hal.HAL_OUT)
     h.ready()
+    trips = os.path.join(os.path.dirname(os.path.abspath(path)), "simprobe_trips.txt")
     stamp, r, boxes, rotary = None, 1.5, [], None
     try:
         while True:
@@ -82,7 +89,13 @@ def main():
             if st != stamp:
                 stamp = st
                 r, boxes, rotary = load(path) if st is not None else (1.5, [], None)
-            h["probe"] = bool(boxes) and touches(h["x"], h["y"], h["z"], r, turned(boxes, rotary, h["r"]))
+            x, y, z = h["x"], h["y"], h["z"]
+            d = depth(x, y, z, r, turned(boxes, rotary, h["r"])) if boxes else None
+            tripped = d is not None and not h["probe"]
+            h["probe"] = d is not None
+            if tripped:  # after the pin: the log costs the trip no time
+                with open(trips, "a") as f:
+                    f.write(f"{x:.6f} {y:.6f} {z:.6f} {d:.6f}\n")
             time.sleep(0.0005)
     except KeyboardInterrupt:
         pass
