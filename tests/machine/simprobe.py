@@ -19,7 +19,8 @@ With ``rotary`` the boxes are given as they lie at C = 0 and turn with the table
 A missing or empty file means nothing to touch (``probe`` stays false), so the sim runs every other
 test unchanged. Polled from user space, the probe trips a little late on a loaded machine: at every
 trip it appends how far the ball already is inside the part (mm) to ``simprobe_trips.txt`` beside
-PART.json (``x y z depth``), so that a test can tell its own lateness from a program's error. Runs under the system Python that has LinuxCNC's ``hal`` module; standard library only.
+PART.json (``x y z depth``), so that a test can tell its own lateness from a program's error. Runs
+under the system Python that has LinuxCNC's ``hal`` module; standard library only.
 """
 
 import json
