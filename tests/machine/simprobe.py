@@ -18,8 +18,10 @@ With ``rotary`` the boxes are given as they lie at C = 0 and turn with the table
 
 A missing or empty file means nothing to touch (``probe`` stays false), so the sim runs every other
 test unchanged. Polled from user space, the probe trips a little late on a loaded machine: at every
-trip it appends how far the ball already is inside the part (mm) to ``simprobe_trips.txt`` beside
-PART.json (``x y z depth``), so that a test can tell its own lateness from a program's error. Runs
+trip it appends how far the ball already was inside the part (mm) when it read the position, and how
+far when it read it again just after setting ``probe``, to ``simprobe_trips.txt`` beside PART.json
+(``x y z depth depth_after``): the controller latched its position between the two, so that a test
+can tell the sim's own lateness from a program's error. Runs
 under the system Python that has LinuxCNC's ``hal`` module; standard library only.
 """
 
@@ -95,8 +97,10 @@ def main():
             tripped = d is not None and not h["probe"]
             h["probe"] = d is not None
             if tripped:  # after the pin: the log costs the trip no time
+                # the controller latches its position when it sees the pin, at the latest by now
+                after = depth(h["x"], h["y"], h["z"], r, turned(boxes, rotary, h["r"])) or 0.0
                 with open(trips, "a") as f:
-                    f.write(f"{x:.6f} {y:.6f} {z:.6f} {d:.6f}\n")
+                    f.write(f"{x:.6f} {y:.6f} {z:.6f} {d:.6f} {max(after, d):.6f}\n")
             time.sleep(0.0005)
     except KeyboardInterrupt:
         pass

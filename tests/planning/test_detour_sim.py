@@ -227,12 +227,13 @@ def test_real_touches_through_the_subroutine_trip_on_the_true_part(sim):
     want = [np.asarray(t.contact_tip) + float(shift @ np.asarray(t.normal)) * np.asarray(t.normal) for t in touches]
     err = np.linalg.norm(tips - np.asarray(want), axis=1)
     # the simulated probe trips late on a loaded machine (polled from user space: 32 ms at 100 mm/min
-    # cost 0.054 mm in one suite run) and says by how much the ball was already inside the part; what
-    # is left is the program's: each touch where the true face is, to 0.01 mm
-    late = np.loadtxt(trips, ndmin=2)[:, 3]
+    # cost 0.054 mm in one suite run) and says how deep the ball was when it tripped and just after;
+    # the controller latched between the two: what is left is the program's, each touch where the true
+    # face is, to 0.01 mm
+    late = np.loadtxt(trips, ndmin=2)[:, 3:5]
     print(f"\nreal touches through the subroutine: errors {np.round(err * 1000, 1).tolist()} um, "
           f"the probe's own lateness {np.round(late * 1000, 1).tolist()} um")
     assert len(late) == len(tips), trips.read_text()        # one trip per touch: no rapid met the part
-    assert np.all(np.abs(err - late) <= 0.01), (err, late)
+    assert np.all((err >= late[:, 0] - 0.01) & (err <= late[:, 1] + 0.01)), (err, late)
     assert np.all(late <= 0.25), late        # a sim this late measures nothing: look at the machine's load
     assert np.linalg.norm(np.asarray(out["samples"][-1]) - np.asarray(START)) < 1e-3  # back at the start
