@@ -276,11 +276,10 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                                                   fixture_risers=(0.0, *risers))),
                          "known_heights_mm": tuple(s.height_mm for s in surfaces), "riser_heights_mm": risers,
                          "clamp_faces": tuple(held.jaw_faces),
-                         "occluder_models": [(c.prepare(), p.T_table_obj) for c, p in held.located]}
+                         "occluder_models": _placed(held.located)}
             rec = object_pose.recognise(image, K, dist, T_cam_table, models,
                                         min_score=max(min_score, 0.6), min_margin=min_margin,
-                                        known_models=tuple(known) + tuple((c.prepare(), p.T_table_obj)
-                                                                          for c, p in held.located),
+                                        known_models=tuple(known) + tuple(_placed(held.located)),
                                         known_regions=labels, table_covariance=table_cov, gamma=table.gamma,
                                         search_threads=search_threads, table_extent_xy=table_top, **where)
             accepted += list(rec.accepted)
@@ -451,6 +450,12 @@ def _edges_once(image: np.ndarray, gamma: float) -> Callable[[], object_pose.Edg
     return get
 
 
+def _placed(located: list) -> list:
+    """``(PreparedModel, T_table_obj)`` of each located ``(Candidate, ObjectPose)``: as occluders and
+    known geometry for the objects searched after them."""
+    return [(c.prepare(), p.T_table_obj) for c, p in located]
+
+
 class Chain(NamedTuple):
     """What the support chain found: the objects located and not, the surfaces that carry parts (the
     table's and the located fixtures' faces, :class:`app.vision.support_chain.SupportSurface`) and
@@ -509,8 +514,8 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
             _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table)
             continue
         model = cand.prepare()
-        occ = [(c.prepare(), p.T_table_obj) for c, p in located]
-        kn = tuple(known) + tuple((c.prepare(), p.T_table_obj) for c, p in located)
+        occ = _placed(located)
+        kn = tuple(known) + tuple(occ)
         radius = 0.5 * model.diameter_mm
         if fixture:     # a fixture stands directly on a face found so far
             planes = search_planes(seats, radius, table_risers=(0.0,), fixture_risers=(0.0,))
