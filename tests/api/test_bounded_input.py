@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from tests.support.factories import make_machine
-from tests.support.live_server import free_port
+from tests.support.live_server import free_ports
 
 
 def png_bomb(width: int = 30000, height: int = 30000) -> bytes:
@@ -176,15 +176,15 @@ def _peak_rss_mb(pid: int) -> float:
 def test_bomb_costs_a_running_service_under_100_mb(tmp_path):
     """``setupcam serve`` in its own process; its peak RSS (VmHWM) before and after the bomb is posted to
     every upload route, with an MES key (calibration with an admin key)."""
+    port, viser_port = free_ports(2)
     env = {**os.environ, "SETUPCAM_DATA_DIR": str(tmp_path), "SETUPCAM_LOAD_EXAMPLES": "false",
-           "SETUPCAM_VISER_PORT": str(free_port())}
+           "SETUPCAM_VISER_PORT": str(viser_port)}
     env.pop("DATABASE_URL", None)
     keys = {}
     for scope in ("mes", "admin"):
         out = subprocess.run([sys.executable, "-m", "app.cli", "apikey", "create", "--scope", scope], env=env,
                              capture_output=True, text=True, check=True).stdout
         keys[scope] = out.rsplit("key (shown once): ", 1)[1].strip()
-    port = free_port()
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port)], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     base = f"http://127.0.0.1:{port}"

@@ -17,7 +17,7 @@ from app.services.access import login
 from app.store.db import session_scope
 from app.store.models import AuditEntry, Export
 from tests.support.factories import located_setup, make_machine
-from tests.support.live_server import LiveServer, free_port, postgres_database, postgres_unavailable_reason
+from tests.support.live_server import LiveServer, free_port, free_ports, postgres_database, postgres_unavailable_reason
 
 pytestmark = [pytest.mark.integration, pytest.mark.linuxcnc]
 
@@ -171,9 +171,9 @@ def test_service_killed_during_an_export_ends_written_or_failed_after_restart(tm
     cli("user", "add", "olga", "--role", "operator", "--password", "olga-pw-123")
 
     def serve() -> tuple[subprocess.Popen, str]:
-        port = free_port()
+        port, viser_port = free_ports(2)
         proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port),
-                                 "--viser-port", str(free_port())], env=env,
+                                 "--viser-port", str(viser_port)], env=env,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         base = f"http://127.0.0.1:{port}"
         for _ in range(600):

@@ -7,11 +7,13 @@ PostgreSQL at 127.0.0.1:5432 and dropped afterwards).
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import socket
 import threading
 import time
 import uuid
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -26,9 +28,44 @@ PG_ADMIN_DSN = os.environ.get("SETUPCAM_TEST_PG", "host=127.0.0.1 port=5432 dbna
 
 
 def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_ports(1)[0]
+
+
+def free_ports(n: int) -> list[int]:
+    """``n`` distinct free ports, e.g. a service's and its viewer's: the sockets are held until all are chosen,
+    as two calls of ``free_port`` may return the same port, and the service then cannot bind its own."""
+    with contextlib.ExitStack() as stack:
+        socks = [stack.enter_context(socket.socket()) for _ in range(n)]
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
+
+
+def listening_socket() -> socket.socket:
+    """A socket listening on a free port of 127.0.0.1, for uvicorn to serve on: nothing else can take the
+    port between choosing it and serving on it. ``free_port`` closes its socket, so another worker, or this
+    service's own viewer (it binds during start-up, before uvicorn would), could; and a socket that is
+    bound but not yet listening does not stop another binding with SO_REUSEADDR on Linux."""
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(128)
+    return sock
+
+
+class ServerStartError(RuntimeError):
+    """The test server stopped before it served; the message holds what it logged and raised."""
+
+
+class _Records(logging.Handler):
+    """Keeps what uvicorn and the service log while a server starts, for the error message."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.setFormatter(logging.Formatter("%(name)s %(levelname)s: %(message)s"))
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(self.format(record))
 
 
 def postgres_unavailable_reason() -> str | None:
@@ -74,22 +111,41 @@ def throwaway_database(backend: str, folder: Path) -> Iterator[str]:
 class LiveServer:
     def __init__(self, settings: Settings):
         self.settings = settings
-        self.port = free_port()
+        self.sock = listening_socket()
+        self.port = self.sock.getsockname()[1]
         self.url = f"http://127.0.0.1:{self.port}"
         self.app = create_app(settings)
         config = uvicorn.Config(self.app, host="127.0.0.1", port=self.port, log_level="warning", lifespan="on")
         self.server = uvicorn.Server(config)
-        self.thread = threading.Thread(target=self.server.run, daemon=True)
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        try:
+            self.server.run(sockets=[self.sock])
+        except BaseException as exc:  # noqa: BLE001 - SystemExit too: uvicorn exits when it cannot serve
+            self.error = exc
 
     def start(self, timeout_s: float = 120.0) -> "LiveServer":
-        self.thread.start()
-        deadline = time.monotonic() + timeout_s
-        while not self.server.started:
-            if not self.thread.is_alive():
-                raise RuntimeError("test server died during start-up (see log above)")
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"test server did not start within {timeout_s} s")
-            time.sleep(0.05)
+        records = _Records()
+        loggers = [logging.getLogger(name) for name in ("uvicorn.error", "setupcam", "app")]
+        for logger in loggers:
+            logger.addHandler(records)
+        try:
+            self.thread.start()
+            deadline = time.monotonic() + timeout_s
+            while not self.server.started:
+                if not self.thread.is_alive():
+                    self.sock.close()
+                    raise ServerStartError(f"test server on port {self.port} (viser {self.settings.viser_port}) "
+                                           f"stopped during start-up: {self.error!r}; the end of its log:\n"
+                                           + "\n".join(records.lines or ["(nothing)"])[-3000:])
+                if time.monotonic() > deadline:
+                    raise ServerStartError(f"test server did not start within {timeout_s} s")
+                time.sleep(0.05)
+        finally:
+            for logger in loggers:
+                logger.removeHandler(records)
         return self
 
     def stop(self) -> None:
@@ -126,9 +182,17 @@ def live_server(data_dir: Path, backend: str = "sqlite", **settings_kw) -> Itera
         env = {"SETUPCAM_DATA_DIR": str(data_dir)}
         if backend == "postgres":
             env["DATABASE_URL"] = stack.enter_context(postgres_database())
-        settings_kw.setdefault("viser_port", free_port())  # never the default 8081 of a running service
-        settings = Settings(**env, **settings_kw)
-        server = LiveServer(settings).start()
+        for attempt in range(1, 4):
+            # a fresh viser port each time, never the default 8081 of a running service: the viewer binds
+            # it during start-up, and another worker's process may have taken it since it was chosen
+            settings = Settings(**env, **{"viser_port": free_port(), **settings_kw})
+            try:
+                server = LiveServer(settings).start()
+                break
+            except ServerStartError as exc:
+                if attempt == 3:
+                    raise
+                warnings.warn(f"test server start-up failed (attempt {attempt} of 3), trying again: {exc}")
         stack.callback(server.stop)
         server.make_principals()
         yield server

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import httpx
 
-from tests.support.live_server import free_port
+from tests.support.live_server import free_ports
 
 FIRST_ADMIN = re.compile(r"user 'admin' created with password: (\S+)")
 
@@ -52,7 +52,7 @@ def clean_env(**extra: str) -> dict[str, str]:
 def service_process(command: list[str], data_dir: Path, *, cwd: Path, env: dict[str, str] | None = None,
                     timeout_s: float = 120.0) -> Iterator[ServiceProcess]:
     """Run ``command + ['serve', --port, --viser-port, --data-dir]`` until the block ends (then SIGTERM)."""
-    port, viser_port = free_port(), free_port()
+    port, viser_port = free_ports(2)
     log = data_dir.parent / f"{data_dir.name}-service.log"
     with open(log, "w") as out:
         proc = subprocess.Popen([*command, "serve", "--host", "127.0.0.1", "--port", str(port),
