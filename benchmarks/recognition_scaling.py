@@ -105,8 +105,10 @@ def main() -> int:
             kw = {"search_threads": a.threads} if "search_threads" in inspect.signature(localize).parameters else {}
             if a.fixtures:      # the shop's parallels are declared risers, as in devset_pose.py
                 kw["riser_heights_mm"] = shop_riser_heights(DEVSET)
+            stages = []
             res = localize(image, sc.K, sc.dist, sc.layout, lib + fixtures, recognise=True,
-                           table_model=sc.table_candidate, **kw)
+                           table_model=sc.table_candidate, on_stage=stages.append, **kw)
+            rec = next((st.data for st in stages if st.name == "recognition"), {})
             dt, cpu_s = time.perf_counter() - t, time.process_time() - cpu
             names = [o["name"] for o in res.objects]
             fixture_names = {c.name for c in fixtures}
@@ -120,7 +122,14 @@ def main() -> int:
                                     and o.get("uncertainty_ok")],
                    "objects": [{"name": o["name"], "score": o["score"], "pass": bool(o.get("uncertainty_ok")),
                                 "T_table_obj": o["T_table_obj"]} for o in res.objects],
-                   "prep_s_all": prep_s}
+                   "prep_s_all": prep_s,
+                   # the best five candidates as recognition ranked them, and why each was or was not taken
+                   "ranked": [{k: d.get(k) for k in ("model", "score", "ok", "reason")}
+                              for d in (rec.get("ranked") or [])[:5]],
+                   # the workpiece's own entry, with its rank (0: first)
+                   "truth": next(({"rank": i, **{k: d.get(k) for k in ("score", "ok", "reason")}}
+                                  for i, d in enumerate(rec.get("ranked") or []) if d.get("model") == wp["name"]),
+                                 None)}
             got = next((o for o in res.objects if o["name"] == wp["name"]), None)
             if got is not None:       # the right name at the right place? (1 mm, 0.5 deg as the devset's)
                 e = pose_error_6dof(np.asarray(got["T_table_obj"]), np.asarray(wp["T_table_object"]),
