@@ -434,3 +434,25 @@ def test_recognition_locates_the_fixtures_first_and_finds_the_part_in_the_vise()
     err = pose_error_6dof(np.asarray(obj["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"]), wp.prepare())
     assert np.linalg.norm(err[:3]) < 1.0 and np.nanmax(np.abs(err[3:])) < 0.5, err
     assert [s.name for s in res.stages][:3] == ["table markers", "locate vise_body", "locate vise_jaw"]
+
+
+def test_recognition_ranks_a_part_in_the_vise_by_the_poses_its_jaws_allow():
+    """Devset setup_004: the stepped block held in the vise. A plane search alone ranks it behind a bar
+    and blocks fitted to the vise's own edges, and recognition locates only the best few completely;
+    ranked by the poses the located jaws allow (as it is then located), it is recognised at its place."""
+    from app.geometry import parts
+
+    sc, image, wp = _scene("setup_004")
+    small = parts.pin_block_32()
+    small.apply_scale(0.8)
+    others = [Candidate("parallel_150x25x8", parts.parallel(150.0, 25.0, 8.0)),
+              Candidate("pin_block_32", parts.pin_block_32()), Candidate("pin_block_32_x0.8", small),
+              Candidate("angle_block", trimesh.load(DEVSET / "meshes" / "wp_angle_block.stl", force="mesh"))]
+    res = localize(image, sc.K, sc.dist, sc.layout, [wp] + others + sc.fixture_candidates,
+                   table_model=sc.table_candidate, recognise=True, riser_heights_mm=SHOP_PARALLELS)
+    assert res.ok, res.reason
+    names = [o["name"] for o in res.objects]
+    assert wp.name in names and not {c.name for c in others} & set(names), names
+    obj = next(o for o in res.objects if o["name"] == wp.name)
+    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"]), wp.prepare())
+    assert np.linalg.norm(err[:3]) < 1.0 and np.nanmax(np.abs(err[3:])) < 0.5, err

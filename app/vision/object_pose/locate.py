@@ -343,6 +343,17 @@ def _context(image, K, dist, T_cam_table, model, opts, occluder_models, known_mo
 # --------------------------------------------------------------------------------------------------
 
 
+def coarse_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, opts: LocateOptions,
+                  table_extent_xy=None, clamp_faces=()):
+    """Stages 1 and 2 of :func:`locate_object` alone, on a prepared image: the aligned starts, best
+    first, and the image scale (px per mm); or the reason (str) why there are none. Recognition ranks
+    the library's models by the best of these, so a part held between located jaws is ranked by the
+    poses the jaws allow, as it is then located (a plane search alone ranked devset setup_004's
+    stepped block fifth of 20, behind a parallel fitted to the jaws' edges)."""
+    ctx = _context(None, K, dist, T_cam_table, model, opts, (), (), (), eimg, None, {}, tuple(clamp_faces))
+    return ctx[1] if isinstance(ctx, tuple) else _find(ctx, None, table_extent_xy)
+
+
 def _find(ctx: LocateContext, start_poses, table_extent_xy, start_capture=None):
     """Starts aligned in the table plane, best first, and the image scale (px per mm); or the reason."""
     if start_poses is not None:

@@ -12,9 +12,9 @@ from app.geometry.model_edges import PreparedModel
 from app.geometry.transforms import check_pose, transform_points
 from app.vision.blas_threads import one_blas_thread
 from app.vision.object_pose.edge_image import mask_known_edges, mask_table_regions, prepare_image
-from app.vision.object_pose.locate import locate_object
+from app.vision.object_pose.locate import coarse_starts, locate_object
+from app.vision.object_pose.options import OPTION_NAMES, LocateOptions
 from app.vision.object_pose.results import ObjectFailure, ObjectPose, Recognition
-from app.vision.object_pose.search import centre_extent, find_starts
 
 
 @one_blas_thread
@@ -23,8 +23,11 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     """Which of ``candidates`` are in the image?
 
     Every candidate goes through the search and the planar fit (stages 1 and 2 of
-    :func:`locate_object`); the ``n_full`` best by that coarse score are located completely and
-    ranked by their verification score, the others keep their coarse score ("coarse only").
+    :func:`locate_object`, the located jaws' starts included); the best by that coarse score are
+    located completely, in its order, until ``n_full`` of them fit with ``min_score`` (at most
+    ``2 * n_full`` tried: a coarse score that the full fit does not keep, a bar fitted to a vise's
+    edges, does not use up a place), and ranked by their verification score; the others keep their
+    coarse score ("coarse only").
     ``table_extent_xy`` (x0, x1, y0, y1 mm, in ``locate_kw``): the table top, where a part's centre is
     searched (grown by half its size); without it, wherever image edges meet the plane (a tool
     over the table's back edge, seen beyond it, would be searched too).
@@ -45,23 +48,24 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     regions = locate_kw.pop("known_regions", ())
     if len(regions):
         eimg = mask_table_regions(eimg, regions, T_cam_table, K, dist)
-    search_kw = {k: locate_kw[k] for k in ("height_offsets_mm", "resting_states", "n_starts", "n_planar")
-                 if k in locate_kw}
-    if "search_threads" in locate_kw:
-        search_kw["threads"] = locate_kw["search_threads"]
-    table_xy = locate_kw.get("table_extent_xy")
+    # the search as locate_object will run it (its options, the jaws' starts): its results are kept
+    # in ``eimg.cache`` and reused by the full locate of the best few
+    opts = LocateOptions(gamma=gamma).with_(**{k: v for k, v in locate_kw.items() if k in OPTION_NAMES})
     coarse = []
     for m in candidates:
-        found = find_starts(eimg, K, dist, T_cam_table, m, table_extent_xy=centre_extent(table_xy, m.diameter_mm),
-                            **search_kw)
+        found = coarse_starts(eimg, K, dist, T_cam_table, m, opts, locate_kw.get("table_extent_xy"),
+                              locate_kw.get("clamp_faces", ()))
         coarse.append(0.0 if isinstance(found, str) or not found[0] else float(found[0][0].score))
     order = np.argsort(-np.asarray(coarse), kind="stable")
     res = []
-    for rank, i in enumerate(order):
+    fitted = tried = 0
+    for i in order:
         m = candidates[i]
-        if rank < n_full:
+        if fitted < n_full and tried < 2 * n_full:
             r = locate_object(None, K, dist, T_cam_table, m, edge_image=eimg, min_score=0.0, min_margin=0.0,
                               **locate_kw)
+            tried += 1
+            fitted += isinstance(r, ObjectPose) and r.score >= min_score
         else:
             r = ObjectFailure(model_name=m.name, kind="not_found", reason="coarse only", best_score=coarse[i],
                               candidates=(), timings_ms={})
