@@ -13,7 +13,6 @@ import socket
 import threading
 import time
 import uuid
-import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -182,17 +181,9 @@ def live_server(data_dir: Path, backend: str = "sqlite", **settings_kw) -> Itera
         env = {"SETUPCAM_DATA_DIR": str(data_dir)}
         if backend == "postgres":
             env["DATABASE_URL"] = stack.enter_context(postgres_database())
-        for attempt in range(1, 4):
-            # a fresh viser port each time, never the default 8081 of a running service: the viewer binds
-            # it during start-up, and another worker's process may have taken it since it was chosen
-            settings = Settings(**env, **{"viser_port": free_port(), **settings_kw})
-            try:
-                server = LiveServer(settings).start()
-                break
-            except ServerStartError as exc:
-                if attempt == 3:
-                    raise
-                warnings.warn(f"test server start-up failed (attempt {attempt} of 3), trying again: {exc}")
+        settings_kw.setdefault("viser_port", free_port())  # never the default 8081 of a running service
+        settings = Settings(**env, **settings_kw)
+        server = LiveServer(settings).start()
         stack.callback(server.stop)
         server.make_principals()
         yield server

@@ -51,10 +51,11 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     # the search as locate_object will run it (its options, the jaws' starts): its results are kept
     # in ``eimg.cache`` and reused by the full locate of the best few
     opts = LocateOptions(gamma=gamma).with_(**{k: v for k, v in locate_kw.items() if k in OPTION_NAMES})
+    scene_kw = {k: v for k, v in locate_kw.items() if k not in OPTION_NAMES}   # what locate_object is told
     coarse = []
     for m in candidates:
-        found = coarse_starts(eimg, K, dist, T_cam_table, m, opts, locate_kw.get("table_extent_xy"),
-                              locate_kw.get("clamp_faces", ()))
+        found = coarse_starts(eimg, K, dist, T_cam_table, m, opts, scene_kw.get("table_extent_xy"),
+                              scene_kw.get("clamp_faces", ()))
         coarse.append(0.0 if isinstance(found, str) or not found[0] else float(found[0][0].score))
     order = np.argsort(-np.asarray(coarse), kind="stable")
     res = []
@@ -62,8 +63,8 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     for i in order:
         m = candidates[i]
         if fitted < n_full and tried < 2 * n_full:
-            r = locate_object(None, K, dist, T_cam_table, m, edge_image=eimg, min_score=0.0, min_margin=0.0,
-                              **locate_kw)
+            r = locate_object(None, K, dist, T_cam_table, m, edge_image=eimg,
+                              options=opts.with_(min_score=0.0, min_margin=0.0), **scene_kw)
             tried += 1
             fitted += isinstance(r, ObjectPose) and r.score >= min_score
         else:
