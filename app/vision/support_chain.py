@@ -122,6 +122,13 @@ def search_planes(surfaces: list[SupportSurface], part_radius_mm: float, *,
     return out
 
 
+def part_search_planes(surfaces: list[SupportSurface], part_radius_mm: float, risers_mm=()) -> list:
+    """Where a workpiece is searched (:func:`search_planes`): on every surface and over risers of any
+    height on it (the stepped grids), the shop's declared risers' tops among them."""
+    return search_planes(surfaces, part_radius_mm, table_risers=tuple(sorted({*TABLE_RISERS_MM, *risers_mm})),
+                         fixture_risers=tuple(sorted({*FIXTURE_RISERS_MM, *risers_mm})))
+
+
 def placed_height_above(surfaces: list[SupportSurface], T_table_obj: np.ndarray, vertices_obj: np.ndarray,
                         tol_mm: float = 1.0) -> SupportSurface | None:
     """The surface the placed part rests on: the highest one at or below the part's lowest point
