@@ -328,8 +328,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
             located.append((by_name[pose.model_name], pose))
         reason = "" if accepted else "not recognised: " + "; ".join(r.removeprefix("not recognised: ")
                                                                       for r in reasons if r)
-        msg = ("recognised " + ", ".join(p.model_name + (f" (rests on {' on '.join(p.chain)})" if getattr(p, "chain", ()) else "")
-                                         for p in accepted)) if accepted else reason
+        msg = ("recognised " + ", ".join(p.model_name + _rests_on(p) for p in accepted)) if accepted else reason
         data = {"ok": bool(accepted), "accepted": [a.to_dict() for a in accepted], "ranked": ranked,
                 "reason": reason, "searched_any_height": searched_again,
                 "timings_ms": dict(rec.timings_ms) if rec is not None else {}}
@@ -719,6 +718,12 @@ def _kept_on_guide(cand: Candidate, pose, guide: dict, T_table_carrier: np.ndarr
                 f"{OFF_GUIDE_DEG:g} deg)"),
         best_score=pose.score, candidates=({"T_table_obj": pose.T_table_obj.tolist(), "score": pose.score},),
         timings_ms=dict(pose.timings_ms))
+
+
+def _rests_on(pose) -> str:
+    """The stage message's ' (rests on ... on table)' for a pose that states its chain, else ''."""
+    chain = getattr(pose, "chain", ())
+    return f" (rests on {' on '.join(chain)})" if chain else ""
 
 
 def _carrier(surfaces, pose, cand) -> tuple[str, ...]:

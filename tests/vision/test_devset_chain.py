@@ -481,3 +481,4 @@ def test_recognition_searches_its_best_few_again_over_risers_of_any_height_when_
     assert rec.data["searched_any_height"] and any(k.startswith("first_") for k in rec.data["timings_ms"])
     obj = _recognised_at_its_place(res, sc, wp, others)
     assert "unknown support" in obj["chain"][0], obj["chain"]       # it says it floats on something unseen
+    assert f"{wp.name} (rests on an unknown support" in rec.message, rec.message
