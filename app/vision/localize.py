@@ -195,7 +195,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     candidates : models to locate (``recognise=False``: each is expected) or to choose from
         (``recognise=True``: the fixtures among them are located first, as in the chain, and kept where
         found; the workpieces are then looked for on the table, on the located fixtures' surfaces and
-        on the declared risers' tops, and those recognised with a margin are accepted)
+        on the declared risers' tops, and those recognised with a margin are accepted; when none is,
+        the best :data:`RECOGNISE_AGAIN` are searched again over risers of any height)
     on_stage : called with each finished :class:`Stage`
     table_model : the table's own model (its frame is the table frame): its border, slots and steps are
         removed from the image's edges before objects are searched (they are not the part)
