@@ -272,18 +272,19 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         by_name = {c.name: c for c in ordered}
         accepted, ranked, reasons = [], [], []
         if cad:
+            from app.vision.support_chain import part_search_planes, search_planes, table_surface
+
             models = [c.prepare() for c in cad]
+            surfaces = held.surfaces or [table_surface()]
+            # what the scene says beside the planes: the surfaces' heights, the declared risers, the jaws
+            # and the located fixtures' bodies
+            scene = {"known_heights_mm": tuple(s.height_mm for s in surfaces), "riser_heights_mm": risers,
+                     "clamp_faces": tuple(held.jaw_faces), "occluder_models": _placed(held.located)}
             where = {"height_offsets_mm": height_offsets_mm, "free_height": free_height}
             if held.located or risers:
-                from app.vision.support_chain import search_planes, table_surface
-
-                surfaces = held.surfaces or [table_surface()]
                 radius = max(0.5 * m.diameter_mm for m in models)
                 where = {"height_offsets_mm": tuple(search_planes(surfaces, radius, table_risers=(0.0, *risers),
-                                                                  fixture_risers=(0.0, *risers))),
-                         "known_heights_mm": tuple(s.height_mm for s in surfaces), "riser_heights_mm": risers,
-                         "clamp_faces": tuple(held.jaw_faces),
-                         "occluder_models": _placed(held.located)}
+                                                                  fixture_risers=(0.0, *risers))), **scene}
             rec_kw = dict(min_score=max(min_score, 0.6), min_margin=min_margin,
                           known_models=tuple(known) + tuple(_placed(held.located)), known_regions=labels,
                           table_covariance=table_cov, gamma=table.gamma, search_threads=search_threads,
@@ -295,26 +296,18 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                 # in a vise that it hides: devset setup_029). Only then and only those: every model
                 # searched so always cost 2-3x the time and fitted other parts to a vise's or a tool's
                 # edges at odd heights (setup_021, 026)
-                again = [r["model"] for r in rec.ranked[:RECOGNISE_AGAIN]]
-                models = [m for m in models if m.name in again]
-                from app.vision.support_chain import part_search_planes, table_surface
-
-                surfaces = held.surfaces or [table_surface()]
-                radius = max(0.5 * m.diameter_mm for m in models)
+                again = {r["model"] for r in rec.ranked[:RECOGNISE_AGAIN]}
+                best = [m for m in models if m.name in again]
+                radius = max(0.5 * m.diameter_mm for m in best)
                 anywhere = {"height_offsets_mm": tuple(part_search_planes(surfaces, radius, risers)),
-                            "free_height": True,
-                            "known_heights_mm": tuple(s.height_mm for s in surfaces), "riser_heights_mm": risers,
-                            "clamp_faces": tuple(held.jaw_faces), "occluder_models": _placed(held.located)}
+                            "free_height": True, **scene}
                 first = rec
-                rec = object_pose.recognise(image, K, dist, T_cam_table, models, **rec_kw, **anywhere)
+                rec = object_pose.recognise(image, K, dist, T_cam_table, best, **rec_kw, **anywhere)
                 rec = dataclasses.replace(rec, timings_ms={**{f"first_{k}": v for k, v in first.timings_ms.items()},
-                                               **rec.timings_ms})
+                                                           **rec.timings_ms})
                 searched_again = True
             # what each recognised part rests on, as the chain states it for a named one
-            from app.vision.support_chain import table_surface
-
-            carriers = held.surfaces or [table_surface()]
-            accepted += [dataclasses.replace(p, chain=_carrier(carriers, p, by_name[p.model_name]))
+            accepted += [dataclasses.replace(p, chain=_carrier(surfaces, p, by_name[p.model_name]))
                          for p in rec.accepted]
             ranked += list(rec.ranked)
             if not rec:
