@@ -27,7 +27,8 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     located completely, in its order, until ``n_full`` of them fit with ``min_score`` (at most
     ``2 * n_full`` tried: a coarse score that the full fit does not keep, a bar fitted to a vise's
     edges, does not use up a place), and ranked by their verification score; the others keep their
-    coarse score ("coarse only").
+    coarse score ("coarse only"). Each is located with ``min_margin`` as a named part is (its readings
+    chosen and its own ambiguity judged by it), with no least score (the ranking applies ``min_score``).
     ``table_extent_xy`` (x0, x1, y0, y1 mm, in ``locate_kw``): the table top, where a part's centre is
     searched (grown by half its size); without it, wherever image edges meet the plane (a tool
     over the table's back edge, seen beyond it, would be searched too).
@@ -63,8 +64,12 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     for i in order:
         m = candidates[i]
         if fitted < n_full and tried < 2 * n_full:
+            # every score comes back to be ranked, but a model's own readings are chosen as for a named
+            # part (the clearer, the sharper; two poses of it within the margin are ambiguous): with a
+            # margin of 0 setup_001's bracket took the reading a named locate sets aside, then found it
+            # "ambiguous" against the one it keeps
             r = locate_object(None, K, dist, T_cam_table, m, edge_image=eimg,
-                              options=opts.with_(min_score=0.0, min_margin=0.0), **scene_kw)
+                              options=opts.with_(min_score=0.0, min_margin=min_margin), **scene_kw)
             tried += 1
             fitted += isinstance(r, ObjectPose) and r.score >= min_score
         else:
