@@ -276,17 +276,18 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
 
             models = [c.prepare() for c in cad]
             surfaces = held.surfaces or [table_surface()]
+            placed = _placed(held.located)
             # what the scene says beside the planes: the surfaces' heights, the declared risers, the jaws
             # and the located fixtures' bodies
             scene = {"known_heights_mm": tuple(s.height_mm for s in surfaces), "riser_heights_mm": risers,
-                     "clamp_faces": tuple(held.jaw_faces), "occluder_models": _placed(held.located)}
+                     "clamp_faces": tuple(held.jaw_faces), "occluder_models": placed}
             where = {"height_offsets_mm": height_offsets_mm, "free_height": free_height}
             if held.located or risers:
                 radius = max(0.5 * m.diameter_mm for m in models)
                 where = {"height_offsets_mm": tuple(search_planes(surfaces, radius, table_risers=(0.0, *risers),
                                                                   fixture_risers=(0.0, *risers))), **scene}
             rec_kw = dict(min_score=max(min_score, 0.6), min_margin=min_margin,
-                          known_models=tuple(known) + tuple(_placed(held.located)), known_regions=labels,
+                          known_models=tuple(known) + tuple(placed), known_regions=labels,
                           table_covariance=table_cov, gamma=table.gamma, search_threads=search_threads,
                           table_extent_xy=table_top)
             rec = object_pose.recognise(image, K, dist, T_cam_table, models, **rec_kw, **where)
@@ -322,7 +323,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
             located.append((by_name[pose.model_name], pose))
         reason = "" if accepted else "not recognised: " + "; ".join(r.removeprefix("not recognised: ")
                                                                       for r in reasons if r)
-        msg = ("recognised " + ", ".join(p.model_name + _rests_on(p) for p in accepted)) if accepted else reason
+        msg = ("recognised " + ", ".join(p.model_name + (f" ({_rests_on(p)})" if _rests_on(p) else "")
+                                         for p in accepted)) if accepted else reason
         data = {"ok": bool(accepted), "accepted": [a.to_dict() for a in accepted], "ranked": ranked,
                 "reason": reason, "searched_any_height": searched_again,
                 "timings_ms": dict(rec.timings_ms) if rec is not None else {}}
@@ -586,7 +588,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
         if pose:
             carrier = _carrier(seats if fixture else surfaces, pose, cand)
             pose = dataclasses.replace(pose, chain=carrier, guided_by=None if guide is None else guide["carrier"])
-            chain_text = "rests on " + " on ".join(carrier)
+            chain_text = _rests_on(pose)
             if pose.guided_by:
                 chain_text += f", guided by {pose.guided_by}"
             if pose.held_by:
@@ -715,9 +717,9 @@ def _kept_on_guide(cand: Candidate, pose, guide: dict, T_table_carrier: np.ndarr
 
 
 def _rests_on(pose) -> str:
-    """The stage message's ' (rests on ... on table)' for a pose that states its chain, else ''."""
+    """'rests on ... on table' for a pose that states its chain (a photo model's does not), else ''."""
     chain = getattr(pose, "chain", ())
-    return f" (rests on {' on '.join(chain)})" if chain else ""
+    return "rests on " + " on ".join(chain) if chain else ""
 
 
 def _carrier(surfaces, pose, cand) -> tuple[str, ...]:
