@@ -13,6 +13,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from sqlalchemy import update
 from sqlmodel import Session, col, or_, select
 
 from app.geometry.mesh import load_mesh
@@ -183,17 +184,21 @@ def requeue_setup(ctx: JobContext, args: dict) -> None:
 
 
 def _update(ctx: JobContext, setup_id: int, **fields: Any) -> None:
+    """Write the job's ``fields`` to its setup while the setup is still open (queued or running), in one
+    statement; else raise :class:`JobStopped`. The watchdog may have ended the setup (timeout) between the
+    job's last check and this write: the job must then neither reopen it nor give it a result."""
+    stmt = (update(Setup).where(Setup.id == setup_id).where(col(Setup.status).not_in(FINAL))
+            .values(updated_at=utcnow(), **fields))
     with session_scope(ctx.engine) as session:
-        s = session.get(Setup, setup_id)
-        for k, v in fields.items():
-            setattr(s, k, v)
-        s.updated_at = utcnow()
-        session.add(s)
+        if session.execute(stmt).rowcount != 1:
+            raise JobStopped(f"setup {setup_id} ended while its job ran")
 
 
 def _append_stage(ctx: JobContext, setup_id: int, record: dict) -> None:
     with session_scope(ctx.engine) as session:
         s = session.get(Setup, setup_id)
+        if s.status in FINAL:  # ended by the watchdog since the stage's check
+            raise JobStopped(f"setup {setup_id} ended while its job ran")
         s.stages = [*s.stages, record]  # reassign: JSON columns track assignment, not mutation
         s.updated_at = utcnow()
         session.add(s)

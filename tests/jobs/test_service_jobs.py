@@ -5,6 +5,7 @@ alignment), started again (SQLite and PostgreSQL): both end located."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import signal
@@ -18,6 +19,8 @@ import httpx
 import numpy as np
 import pytest
 
+from app.services import setups
+from app.services.job_kinds import KINDS
 from app.services.setups import search_threads
 from app.synth.bed_images import bed_camera, render_bed_image, scene_variant
 from tests.support.factories import make_machine
@@ -89,6 +92,33 @@ def test_a_job_past_its_timeout_fails_with_that_reason(tmp_path):
         # the watchdog ends the job first, then marks its setup: a client reading at once may be between
         setup = wait_for(c, accepted["url"], lambda s: s["status"] != "running", 30, "the setup's end")
         assert setup["status"] == "failed" and setup["reason"] == job["reason"]
+
+
+def test_a_job_that_times_out_before_its_setup_starts_leaves_the_setup_failed(tmp_path, monkeypatch):
+    # the job still reads its library when the watchdog ends it (a loaded machine): its first write, the
+    # setup "running", came after the watchdog's "failed" and left the setup running for good
+    slow, kind, ended = setups.library_candidates, KINDS["localize"], threading.Event()
+
+    def slow_library(*args, **kwargs):
+        time.sleep(0.75)  # twice: the models, then the table
+        return slow(*args, **kwargs)
+
+    def run_then_say_so(*args, **kwargs):
+        try:
+            return kind.run(*args, **kwargs)
+        finally:
+            ended.set()
+
+    monkeypatch.setattr(setups, "library_candidates", slow_library)
+    monkeypatch.setitem(KINDS, "localize", dataclasses.replace(kind, run=run_then_say_so))
+    with live_server(tmp_path / "data", job_timeout_s=1.0, job_heartbeat_s=0.2) as srv, srv.client() as c:
+        machine_id, bracket = sample_machine(c)
+        accepted = start_setup(c, machine_id, bracket)
+        job = wait_for(c, accepted["job_url"], lambda j: j["status"] in ("done", "failed"), 60)
+        assert job["status"] == "failed" and job["reason"].startswith("timed out after 1 s"), job
+        assert ended.wait(60), "the job's own run ended"
+        setup = c.get(accepted["url"]).json()
+        assert setup["status"] == "failed" and setup["reason"] == job["reason"] and setup["stages"] == [], setup
 
 
 @pytest.mark.slow
