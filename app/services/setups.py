@@ -471,12 +471,13 @@ def picture_sha256(session: Session, s: Setup) -> str:
 
 
 def revise(session: Session, files: FileStore, settings, s: Setup, result: SetupResult, *, note: str,
-           by: str | None, action: str, object_index: int, **detail: Any) -> Setup:
+           by: str | None, action: str, object_index: int, audited: LocatedObject | None = None,
+           **detail: Any) -> Setup:
     """The one way a located setup's result changes: every object's ``T_cam_obj`` set from its
     ``T_table_obj``, the review (pass/fail, proposed offset), the overlay redrawn at the new poses, the
     old revision kept in the history, revision n+1 (never confirmed: it must be confirmed again before
-    export), and ``action`` on the audit log with ``detail`` and the revised object's (``object_index``)
-    pose and review."""
+    export), and ``action`` on the audit log with ``detail`` and the revised object's (``object_index``,
+    or ``audited`` when it is no longer in the result) pose and review."""
     result.place()
     review(result, get_machine(session, s.machine_id), settings)
     result.overlay_sha256 = _redraw(session, files, s, result)
@@ -487,7 +488,7 @@ def revise(session: Session, files: FileStore, settings, s: Setup, result: Setup
     s.updated_at = utcnow()
     session.add(s)
     session.flush()
-    obj = result.objects[object_index]
+    obj = audited if audited is not None else result.objects[object_index]
     audit(session, by or "?", action, setup_id=s.id, machine_id=s.machine_id, result_revision=s.result_revision,
           object_index=object_index, T_table_obj=obj.T_table_obj, uncertainty_pass=obj.uncertainty_pass,
           reason=obj.uncertainty_reason, **detail)
@@ -575,6 +576,25 @@ def choose_datum(session: Session, files: FileStore, settings, setup_id: int, *,
     return revise(session, files, settings, s, result.replace(object_index, entry),
                   note=f"datum chosen: pose {choice + 1} of {len(cands)}", by=by, action="setup.datum",
                   object_index=object_index, choice=choice)
+
+
+def dismiss_object(session: Session, files: FileStore, settings, setup_id: int, *, object_index: int,
+                   by: str | None = None) -> Setup:
+    """The operator says a located workpiece is not there (recognition took something else for a
+    library part) -> revision n+1 without it; the offset is then the next workpiece's. The dismissed
+    object stays in the history and on the audit log. Clamps and fixtures are not dismissed (the
+    probing paths avoid them), nor the last workpiece (there would be no offset to propose: locate
+    again with the part named)."""
+    s, result, obj = _located_object(session, setup_id, object_index)
+    if obj.kind != "workpiece":
+        raise Invalid(f"{obj.name} is a {obj.kind}: only a workpiece can be dismissed (clamps and fixtures "
+                      "stay in the result so that the probing paths avoid them)")
+    if sum(o.kind == "workpiece" for o in result.objects) < 2:
+        raise Invalid(f"{obj.name} is the only workpiece located: if it is not on the table, start a new setup "
+                      "with the right part named")
+    rest = result.model_copy(update={"objects": [o for i, o in enumerate(result.objects) if i != object_index]})
+    return revise(session, files, settings, s, rest, note=f"{obj.name} dismissed: not on the table", by=by,
+                  action="setup.dismiss", object_index=object_index, audited=obj, name=obj.name)
 
 
 def confirm_setup(session: Session, setup_id: int, *, result_revision: int, by: str, events=None) -> Setup:

@@ -295,6 +295,7 @@ function fillOffset(off, wp) {
         ok ? "ok" : "bad");
   }
   fillDatumChoice(off);
+  fillPartsChoice(state.setup && state.setup.status === "located" ? state.setup.result : null);
   const notes = [];
   if (off && off.object) notes.push(`Datum of ${off.object}.`);
   if (wp && wp.chain && wp.chain.length) notes.push(`Rests on ${wp.chain.join(" on ")}.`);
@@ -333,6 +334,29 @@ function fillDatumChoice(off) {
       { object_index: workpieceIndex(s.result), choice: i }), `Using pose ${i + 1} as the datum…`));
     box.append(b);
   });
+}
+
+/** Recognition found more than one workpiece: the offset is the first one's. The operator takes out a
+ *  part that is not on the table ("Not there": a new revision without it); clamps and fixtures stay. */
+function fillPartsChoice(result) {
+  const box = $("parts-choice");
+  const objs = (result && result.objects) || [];
+  const parts = objs.map((o, i) => [o, i]).filter(([o]) => o.kind === "workpiece");
+  box.replaceChildren();
+  box.classList.toggle("hidden", parts.length < 2);
+  if (parts.length < 2) return;
+  const head = document.createElement("div");
+  head.textContent = `${parts.length} parts recognised; the offset is for ${parts[0][0].name}. Take out any that is not on the table:`;
+  box.append(head);
+  for (const [o, i] of parts) {
+    const b = document.createElement("button");
+    b.setAttribute("data-testid", "dismiss-part");
+    b.style.margin = "4px 4px 0 0";
+    b.textContent = `Not there: ${o.name}${o.score === null || o.score === undefined ? "" : ` (${Math.round(100 * o.score)} %)`}`;
+    b.addEventListener("click", () => act((s) => postJSON(`/api/v1/setups/${s.id}/dismiss`, { object_index: i }),
+      `Taking ${o.name} out of the result…`));
+    box.append(b);
+  }
 }
 
 /** Read the controller's current offset in the chosen slot (once per machine and slot), then redraw the table. */

@@ -348,6 +348,32 @@ def test_symmetric_part_asks_which_pose_is_meant(page, service, scene):
     assert page.js_errors == []
 
 
+def test_a_part_recognised_in_error_is_taken_out_on_the_page(page, service):
+    """Two workpieces in the result (recognition found a small block on clutter beside the part, and
+    ranked it first): the page says whose offset it is and takes the wrong one out with one touch."""
+    from app.geometry.transforms import pose_from_xyz_euler
+    from tests.support.factories import located_setup
+
+    right = pose_from_xyz_euler(380, 190, 0)
+    sid = located_setup(service, service.machine_id, pose_from_xyz_euler(250, 390, 0),
+                        more=({"name": "plate_slots", "kind": "workpiece", "T_table_obj": right},))
+    page.goto(f"{service.url}/setup?machine={service.machine_id}&setup={sid}")
+    box = page.get_by_test_id("parts-choice")
+    box.wait_for(state="visible", timeout=20_000)
+    assert "2 parts recognised; the offset is for block" in box.inner_text()
+    buttons = page.get_by_test_id("dismiss-part")
+    assert buttons.count() == 2 and "Not there: block" in buttons.nth(0).inner_text()
+    page.screenshot(path=str(ARTIFACTS / "setup-parts-choice.png"))
+    buttons.nth(0).click()
+    page.wait_for_function("() => document.querySelector('#step').textContent.includes('revision 2')", timeout=20_000)
+    assert not box.is_visible()
+    s = setup_json(service, sid)
+    assert [o["name"] for o in s["result"]["objects"]] == ["plate_slots"]
+    assert s["result"]["offset"]["object"] == "plate_slots"
+    assert page.get_by_test_id("offset-x").inner_text() == f"{s['result']['offset']['x_mm']:.2f}"
+    assert page.js_errors == []
+
+
 def test_failure_is_shown_as_a_reason_with_what_to_do(page, service):
     rng = np.random.default_rng(0)
     blank = np.clip(rng.normal(90, 12, (H, W)), 0, 255).astype(np.uint8)   # no table, no markers

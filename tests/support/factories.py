@@ -41,8 +41,9 @@ def make_machine(client, controller: dict | None, T_machine_table=None, travel=N
 
 def located_setup(server, machine_id: int, T_table_obj: np.ndarray, *, sigma_mm: float = 0.05,
                   sigma_deg: float = 0.005, T_obj_datum: np.ndarray | None = None,
-                  model: tuple[int, int] | None = None) -> int:
-    """Insert a setup in state 'located' with one workpiece at T_table_obj; returns its id."""
+                  model: tuple[int, int] | None = None, more: tuple[dict, ...] = ()) -> int:
+    """Insert a setup in state 'located' with one workpiece at T_table_obj (and the objects ``more``:
+    ``name``, ``kind``, ``T_table_obj`` each, after it); returns its id."""
     engine, files, settings = server.app.state.engine, server.app.state.files, server.settings
     with session_scope(engine) as session:
         machine = session.get(Machine, machine_id)
@@ -58,7 +59,10 @@ def located_setup(server, machine_id: int, T_table_obj: np.ndarray, *, sigma_mm:
                "T_obj_datum": None if T_obj_datum is None else np.asarray(T_obj_datum).tolist(),
                "sigma": {"x_mm": sigma_mm, "y_mm": sigma_mm, "z_mm": sigma_mm, "rx_deg": sigma_deg,
                          "ry_deg": sigma_deg, "rz_deg": sigma_deg}}
-        result = review_fields({"ok": True, "table": {"T_cam_table": T_cam_table.tolist()}, "objects": [obj]},
+        others = [{**obj, "model_id": None, "revision": None, "T_obj_datum": None, "score": 0.7, **o,
+                   "T_table_obj": np.asarray(o["T_table_obj"]).tolist(),
+                   "T_cam_obj": (T_cam_table @ np.asarray(o["T_table_obj"])).tolist()} for o in more]
+        result = review_fields({"ok": True, "table": {"T_cam_table": T_cam_table.tolist()}, "objects": [obj, *others]},
                                machine, settings)
         s = Setup(machine_id=machine_id, camera_id=machine.camera_ids[0], capture_id=cap.id,
                   intrinsics=INTRINSICS, status="located", result=result, result_revision=1)

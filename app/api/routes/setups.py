@@ -216,6 +216,15 @@ def choose_datum(session: SessionDep, files: FilesDep, settings: SettingsDep, wh
                                       choice=body.choice, by=who.label()))
 
 
+@router.post("/{setup_id}/dismiss", response_model=SetupPublic,
+             summary="A located workpiece is not there (recognised in error) -> new revision without it",
+             responses={422: {"description": "not a workpiece, or the only one located"}})
+def dismiss(session: SessionDep, files: FilesDep, settings: SettingsDep, who: OperatorPrincipal, setup_id: int,
+            body: RefineBody) -> SetupPublic:
+    return to_public(svc.dismiss_object(session, files, settings, setup_id, object_index=body.object_index,
+                                        by=who.label()))
+
+
 class ConfirmBody(BaseModel):
     result_revision: int = Field(ge=1, description="The result revision the operator saw and confirms")
 
