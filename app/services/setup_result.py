@@ -114,6 +114,10 @@ class SetupResult(BaseModel):
         objs = [obj if i == index else o for i, o in enumerate(self.objects)]
         return self.model_copy(update={"objects": objs})
 
+    def without(self, index: int) -> "SetupResult":
+        """A copy without object ``index``."""
+        return self.model_copy(update={"objects": [o for i, o in enumerate(self.objects) if i != index]})
+
     def place(self) -> None:
         """Every object's ``T_cam_obj`` from its ``T_table_obj`` (one source: the pose on the table)."""
         if not self.table or "T_cam_table" not in self.table:

@@ -592,9 +592,9 @@ def dismiss_object(session: Session, files: FileStore, settings, setup_id: int, 
     if sum(o.kind == "workpiece" for o in result.objects) < 2:
         raise Invalid(f"{obj.name} is the only workpiece located: if it is not on the table, start a new setup "
                       "with the right part named")
-    rest = result.model_copy(update={"objects": [o for i, o in enumerate(result.objects) if i != object_index]})
-    return revise(session, files, settings, s, rest, note=f"{obj.name} dismissed: not on the table", by=by,
-                  action="setup.dismiss", object_index=object_index, audited=obj, name=obj.name)
+    return revise(session, files, settings, s, result.without(object_index),
+                  note=f"{obj.name} dismissed: not on the table", by=by, action="setup.dismiss",
+                  object_index=object_index, audited=obj, name=obj.name)
 
 
 def confirm_setup(session: Session, setup_id: int, *, result_revision: int, by: str, events=None) -> Setup:

@@ -323,7 +323,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
             located.append((by_name[pose.model_name], pose))
         reason = "" if accepted else "not recognised: " + "; ".join(r.removeprefix("not recognised: ")
                                                                       for r in reasons if r)
-        msg = ("recognised " + ", ".join(p.model_name + (f" ({_rests_on(p)})" if _rests_on(p) else "")
+        msg = ("recognised " + ", ".join(f"{p.model_name} ({r})" if (r := _rests_on(p)) else p.model_name
                                          for p in accepted)) if accepted else reason
         data = {"ok": bool(accepted), "accepted": [a.to_dict() for a in accepted], "ranked": ranked,
                 "reason": reason, "searched_any_height": searched_again,
