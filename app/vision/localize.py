@@ -29,6 +29,7 @@ from app.geometry.guides import (
     guide_start_poses,
 )
 from app.geometry.model_edges import PreparedModel, prepare_model
+from app.geometry.solid_overlap import interior_points, share_inside
 from app.geometry.transforms import make_pose, transform_points
 from app.geometry.support_surfaces import CARRYING_KINDS
 from app.vision import object_pose
@@ -53,6 +54,11 @@ FIXTURE_MIN_SCORE = 0.35
 # A fixture's outline holds the part it carries (the devset's vise bodies leave 40-69 % of the edges
 # inside theirs unexplained, a moving jaw more than 70 %): the unexplained-edge limit is a part's test.
 NOT_A_PART = {"max_unexplained": 1.0}
+# Two located objects cannot fill the same space: a real contact (a part on a parallel, between a vise's
+# jaws, under a strap) interpenetrates by the fits' errors only; a fixture fitted to a part's edges lies
+# in the part (a 150 x 32 mm parallel found along a bracket's front edge on the table: 45-94 % of it
+# inside the bracket). Share of either solid's volume inside the other (app.geometry.solid_overlap).
+OVERLAP_MAX = 0.2
 FIXTURE_OPTIONS = {"contact_sigma_mm": 0.05, "contact_sigma_deg": 0.05, "free_contact_sigma_deg": 0.05,
                    "settle_starts": True, "n_coarse": 120, "coarse_step_max_mm": 8.0, "n_starts": 10, **NOT_A_PART}
 
@@ -355,6 +361,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                                  table_extent_xy=table_top, search_threads=search_threads,
                                                  **kind_options(cand.kind))
             _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table)
+    located = _drop_overlapping(located, not_found, done)
     for i, (cand, pose) in enumerate(located):
         objects.append(object_entry(cand, pose, COLOURS[i % len(COLOURS)]))
     overlay = draw_overlay(image, K, dist, table, located)
@@ -375,6 +382,52 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
             reason = f"{len(objects)} of {len(objects) + len(not_found)} objects located; {names} not found"
     return LocalizeResult(ok, reason, tdict, objects, not_found, stages, overlay,
                           {"table": table_ms, "total": (time.perf_counter() - t_all) * 1e3})
+
+
+def _drop_overlapping(located: list, not_found: list, done: Callable[[Stage], None]) -> list:
+    """``located`` without the objects that would fill the same space as another: of a fixture and a
+    workpiece whose solids overlap by more than :data:`OVERLAP_MAX` of either, the one that explains
+    fewer image edges is taken out (to ``not_found``, with the reason, and said in a stage)."""
+    t = time.perf_counter()
+    points: dict[int, np.ndarray] = {}
+
+    def inside(a, b) -> float:
+        (ca, pa), (cb, pb) = a, b
+        if id(ca) not in points:
+            points[id(ca)] = interior_points(ca.mesh)
+        return share_inside(ca.mesh, pa.T_table_obj, cb.mesh, pb.T_table_obj, points[id(ca)])
+
+    def explains(cp) -> float:    # image edges (px) its fit explains; CAD and photo poses both say
+        return float(cp[1].supported_edge_px)
+
+    out, notes = list(located), []
+    for f in [x for x in located if x[0].kind in FIXTURE_KINDS]:
+        for w in [x for x in located if x[0].kind == "workpiece"]:
+            if f not in out or w not in out or not _spheres_meet(f, w):
+                continue
+            share = max(inside(f, w), inside(w, f))
+            if share <= OVERLAP_MAX:
+                continue
+            keep, drop = (w, f) if explains(w) >= explains(f) else (f, w)
+            out.remove(drop)
+            reason = (f"taken out: it would fill the same space as {keep[0].name} ({share:.0%} of one of them "
+                      f"inside the other), which explains more of the picture's edges")
+            not_found.append({"name": drop[0].name, "model_id": drop[0].model_id, "reason": reason,
+                              "kind": "overlaps"})
+            notes.append(f"{drop[0].name} {reason}")
+    if notes:
+        done(Stage("solid check", True, (time.perf_counter() - t) * 1e3, "; ".join(notes),
+                   {"taken_out": [n for n in not_found if n.get("kind") == "overlaps"]}))
+    return out
+
+
+def _spheres_meet(a, b) -> bool:
+    """Whether two placed objects' bounding spheres meet (mm, table frame): else they cannot overlap."""
+    (ca, pa), (cb, pb) = a, b
+    centre = [transform_points(p.T_table_obj, c.mesh.bounding_sphere.primitive.center[None])[0]
+              for c, p in ((ca, pa), (cb, pb))]
+    radius = ca.mesh.bounding_sphere.primitive.radius + cb.mesh.bounding_sphere.primitive.radius
+    return bool(np.linalg.norm(centre[0] - centre[1]) < radius)
 
 
 def _report(cand, pose, ms, located, not_found, done, image, K, dist, table, chain_text: str = "") -> None:
