@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from typing import Any
 
 import cv2
@@ -41,6 +42,8 @@ from app.vision.photo_model import PhotoModel, View, known_edge_mask, locate_nea
 log = logging.getLogger(__name__)
 
 FINAL = ("located", "failed")
+# a long stage's progress is written at most this often (s): the page's bar moves, the database is not busy
+PROGRESS_EVERY_S = 0.5
 LOCATED_KINDS = ("workpiece", "clamp", "support")   # what a setup looks for on the table
 
 
@@ -170,7 +173,7 @@ def fail_setup(ctx: JobContext, args: dict, reason: str) -> None:
     with session_scope(ctx.engine) as session:
         s = session.get(Setup, args["setup_id"])
         if s is not None and s.status not in FINAL:
-            s.status, s.reason, s.updated_at = "failed", reason[:2000], utcnow()
+            s.status, s.reason, s.progress, s.updated_at = "failed", reason[:2000], None, utcnow()
             session.add(s)
 
 
@@ -179,7 +182,7 @@ def requeue_setup(ctx: JobContext, args: dict) -> None:
     with session_scope(ctx.engine) as session:
         s = session.get(Setup, args["setup_id"])
         if s is not None and s.status not in FINAL:
-            s.status, s.stages, s.reason, s.updated_at = "queued", [], "", utcnow()
+            s.status, s.stages, s.reason, s.progress, s.updated_at = "queued", [], "", None, utcnow()
             session.add(s)
 
 
@@ -200,6 +203,7 @@ def _append_stage(ctx: JobContext, setup_id: int, record: dict) -> None:
         if s.status in FINAL:  # ended by the watchdog since the stage's check
             raise JobStopped(f"setup {setup_id} ended while its job ran")
         s.stages = [*s.stages, record]  # reassign: JSON columns track assignment, not mutation
+        s.progress = None               # the stage that was in progress is this one, finished
         s.updated_at = utcnow()
         session.add(s)
 
@@ -272,8 +276,17 @@ def run_setup_job(run: JobRun, setup_id: int) -> Outcome:
         (table,) = library_candidates(session, ctx.files, [{"model_id": machine.table_model_id,
                                                             "revision": table_rev.revision}], ctx.cache)
         intr = s.intrinsics
-    _update(ctx, setup_id, status="running", stages=[], reason="")
+    _update(ctx, setup_id, status="running", stages=[], reason="", progress=None)
     log.info("setup running", extra={"setup_id": setup_id, "candidates": len(candidates)})
+    written = [0.0]   # when progress was last written (time.monotonic)
+
+    def on_progress(p: object_pose.Progress) -> None:
+        run.check()  # a recognition runs 30-60 s: a timed-out job stops within one model, not after all
+        now = time.monotonic()
+        if p.done < p.total and now - written[0] < PROGRESS_EVERY_S:
+            return
+        written[0] = now
+        _update(ctx, setup_id, progress=p.to_dict())
 
     def on_stage(stage) -> None:
         run.check()  # timed out or taken over by another worker: stop at this stage
@@ -288,23 +301,24 @@ def run_setup_job(run: JobRun, setup_id: int) -> Outcome:
         # models asked for: the support chain (fixtures first, the part on their surfaces or over risers);
         # recognition picks among the whole library and keeps the plain search
         result = localize(image, np.asarray(intr["K"]), np.asarray(intr["dist"]), layout, candidates,
-                          recognise=recognise, on_stage=on_stage, table_model=table, chain=not recognise,
+                          recognise=recognise, on_stage=on_stage, on_progress=on_progress, table_model=table,
+                          chain=not recognise,
                           intrinsics_sigma=intrinsics_sigma(intr), search_threads=search_threads(ctx.settings))
     except JobStopped:
         raise
     except Exception as exc:  # noqa: BLE001 - a crash must end the job as failed, with a reason
         log.exception("setup crashed", extra={"setup_id": setup_id})
-        _update(ctx, setup_id, status="failed", reason=f"internal error in localisation ({exc.__class__.__name__}); "
-                                                         "it has been logged")
+        _update(ctx, setup_id, status="failed", progress=None,
+                reason=f"internal error in localisation ({exc.__class__.__name__}); it has been logged")
         return Outcome(False, "internal error in localisation", {"resource": "setup", "id": setup_id})
     run.check()  # a run that timed out or lost its job must not write a result
     payload = review_fields(result.to_dict(), machine, ctx.settings)
     with session_scope(ctx.engine) as session:
         payload["overlay_sha256"] = ctx.files.put(session, png_bytes(result.overlay), "image/png")
     if result.ok:
-        _update(ctx, setup_id, status="located", result=payload, result_revision=1)
+        _update(ctx, setup_id, status="located", result=payload, result_revision=1, progress=None)
     else:
-        _update(ctx, setup_id, status="failed", reason=result.reason, result=payload)
+        _update(ctx, setup_id, status="failed", reason=result.reason, result=payload, progress=None)
     if ctx.events is not None:
         ctx.events.publish("setup.located" if result.ok else "setup.failed",
                            {"setup_id": setup_id, "reason": result.reason, "objects": table_obj_summary(payload),

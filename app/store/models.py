@@ -150,7 +150,8 @@ class Setup(SQLModel, table=True):
     """A setup job: queued -> running -> located | failed; then confirmed and exported.
 
     ``result`` holds revision ``result_revision`` of the located poses (a refine or an operator
-    adjustment makes a new revision); ``stages`` the per-stage record (name, ok, ms, message, picture).
+    adjustment makes a new revision); ``stages`` the per-stage record (name, ok, ms, message, picture);
+    ``progress`` where a long stage stands while it runs.
     """
 
     id: int | None = Field(default=None, primary_key=True)
@@ -163,6 +164,8 @@ class Setup(SQLModel, table=True):
     status: str = Field(default="queued", max_length=20, index=True)
     reason: str = Field(default="", max_length=2000)
     stages: list[dict] = json_field(default_factory=list, nullable=False)
+    # the stage running now, while it runs long (recognition): {stage, done, total, message}; None between
+    progress: dict | None = json_field()
     result: dict | None = json_field()
     result_revision: int = 0
     history: list[dict] = json_field(default_factory=list, nullable=False,

@@ -185,7 +185,8 @@ RECOGNISE_AGAIN = 8
 @one_blas_thread
 def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: dict,
              candidates: list[Candidate], *, recognise: bool = False,
-             on_stage: Callable[[Stage], None] | None = None, min_score: float = 0.5,
+             on_stage: Callable[[Stage], None] | None = None,
+             on_progress: Callable[[object_pose.Progress], None] | None = None, min_score: float = 0.5,
              min_margin: float = 0.1, height_offsets_mm=(0.0,), table_model: Candidate | None = None,
              chain: bool = False, free_height: bool = False,
              riser_heights_mm: tuple | None = None,
@@ -204,6 +205,9 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
         on the declared risers' tops, and those recognised with a margin are accepted; when none is,
         the best :data:`RECOGNISE_AGAIN` are searched again over risers of any height)
     on_stage : called with each finished :class:`Stage`
+    on_progress : called while recognition runs (30-60 s over a 20-model library), with how many of
+        its models are searched and fitted (:class:`app.vision.object_pose.Progress`); what it raises
+        ends the call (the service's job stopped)
     table_model : the table's own model (its frame is the table frame): its border, slots and steps are
         removed from the image's edges before objects are searched (they are not the part)
     chain : the support chain (fixtures first, parts on their surfaces or over risers)
@@ -296,7 +300,8 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                           known_models=tuple(known) + tuple(placed), known_regions=labels,
                           table_covariance=table_cov, gamma=table.gamma, search_threads=search_threads,
                           table_extent_xy=table_top)
-            rec = object_pose.recognise(image, K, dist, T_cam_table, models, **rec_kw, **where)
+            rec = object_pose.recognise(image, K, dist, T_cam_table, models, **rec_kw, **where,
+                                        on_progress=on_progress)
             if not rec and not free_height:
                 # nothing on those planes: the best few there are searched again where the chain searches
                 # a named part, over risers of any height with their height fitted (a part on parallels
@@ -309,7 +314,15 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                 anywhere = {"height_offsets_mm": tuple(part_search_planes(surfaces, radius, risers)),
                             "free_height": True, **scene}
                 first = rec
-                rec = object_pose.recognise(image, K, dist, T_cam_table, best, **rec_kw, **anywhere)
+
+                def again_told(p: object_pose.Progress) -> None:
+                    if on_progress is not None:
+                        on_progress(dataclasses.replace(p, message=f"none found on the table or the fixtures; the best "
+                                                                   f"{len(best)} again over risers of any height: "
+                                                                   f"{p.message}"))
+
+                rec = object_pose.recognise(image, K, dist, T_cam_table, best, **rec_kw, **anywhere,
+                                            on_progress=again_told)
                 rec = dataclasses.replace(rec, timings_ms={**{f"first_{k}": v for k, v in first.timings_ms.items()},
                                                            **rec.timings_ms})
                 searched_again = True

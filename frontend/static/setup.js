@@ -109,7 +109,7 @@ async function start(grab, file) {
   if (ids.length) form.append("model_ids", ids.join(","));
   if (grab) form.append("grab", "true");
   if (file) form.append("image", file);
-  resetProgress(ids.length ? 1 + ids.length : 2);
+  resetProgress(stagesFor(ids.length));
   $("step").textContent = grab ? "Taking the picture…" : "Sending the photo…";
   say($("status"), "Working: the picture is being checked.", "info");
   setBusy(true);
@@ -140,6 +140,12 @@ function showSetupId(id) {
 }
 
 // ------------------------------------------------------------------------------------------- progress
+// Stages a setup will have: the table markers, then one per model named; with none named (recognition)
+// one per fixture of the library (each is looked for first), then the recognition itself.
+function stagesFor(named) {
+  return named ? 1 + named : 2 + document.querySelectorAll("#clamps input.clamp").length;
+}
+
 function resetProgress(expected) {
   $("probing-link").classList.add("hidden");
   state.expectedStages = Math.max(1, expected);
@@ -163,14 +169,26 @@ function addStage(st) {
   $("step").textContent = st.ok ? `Done: ${st.name}. Working on the next step…` : `Problem in step “${st.name}”.`;
 }
 
+// A long stage under way (recognition over the library: 30-60 s): the bar moves within it and the
+// step says how far it is, so that a still bar never means "stuck".
+function showProgress(p) {
+  if (!p || !p.total) return;
+  const n = $("stages").children.length;
+  const within = Math.min(1, p.done / p.total);
+  setProgress(100 * (n + within) / (state.expectedStages + 0.5), "");
+  const words = p.message.charAt(0).toUpperCase() + p.message.slice(1);
+  $("step").textContent = `${p.stage.charAt(0).toUpperCase() + p.stage.slice(1)}: ${words}…`;
+}
+
 function follow(id, eventsUrl) {
   if (state.events) state.events.close();
   const es = new EventSource(eventsUrl);
   state.events = es;
   es.addEventListener("stage", (ev) => addStage(JSON.parse(ev.data)));
+  es.addEventListener("progress", (ev) => showProgress(JSON.parse(ev.data)));
   es.addEventListener("status", async (ev) => {
     const s = JSON.parse(ev.data);
-    if (s.status === "running") $("step").textContent = "Finding the table markers and the parts…";
+    if (s.status === "running" && !$("stages").children.length) $("step").textContent = "Finding the table markers and the parts…";
     if (s.status === "located" || s.status === "failed") {
       es.close();
       state.events = null;
@@ -189,8 +207,9 @@ async function loadSetup(id) {
   try {
     const s = await api(`/api/v1/setups/${id}`);
     if ((s.status === "queued" || s.status === "running") && !state.events) {
-      resetProgress(s.models.length ? 1 + s.models.length : 2);
+      resetProgress(stagesFor(s.models.length));
       for (const st of s.stages) addStage(st);
+      showProgress(s.progress);
       follow(id, `/api/v1/setups/${id}/events`);
       return;
     }

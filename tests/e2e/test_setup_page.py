@@ -374,6 +374,52 @@ def test_a_part_recognised_in_error_is_taken_out_on_the_page(page, service):
     assert page.js_errors == []
 
 
+@pytest.mark.slow
+def test_recognition_shows_how_far_it_is_while_it_runs(page, service, scene):
+    """No part named: recognition searches the whole library (tens of seconds as one stage). The step says
+    how many models are searched and the bar moves within the stage; the API says the same while it runs
+    and nothing once it is done."""
+    page.goto(f"{service.url}/setup?machine={service.machine_id}")
+    page.get_by_test_id("part-select").select_option(value="")
+    # every text of the step and every position of the bar, as the operator would have seen them
+    page.evaluate("""() => {
+        window.__seen = [];
+        const note = () => window.__seen.push([document.querySelector('#step').textContent,
+            parseFloat(document.querySelector('#progress').getAttribute('aria-valuenow')),
+            document.querySelectorAll('#stages li').length]);
+        new MutationObserver(note).observe(document.querySelector('#progress-panel'),
+            {subtree: true, childList: true, characterData: true, attributes: true});
+    }""")
+    page.get_by_test_id("upload-input").set_input_files(
+        {"name": "setup.png", "mimeType": "image/png", "buffer": scene["png"]})
+    page.wait_for_function("() => /[?&]setup=\\d+/.test(location.search)", timeout=60_000)
+    setup_id = int(urllib.parse.parse_qs(urllib.parse.urlparse(page.url).query)["setup"][0])
+    while_running = []
+    while (s := setup_json(service, setup_id))["status"] in ("queued", "running"):
+        if s["progress"]:
+            while_running.append(s["progress"])
+        time.sleep(0.2)
+    page.wait_for_function("() => document.querySelector('#progress').classList.contains('done')"
+                           " || document.querySelector('#progress').classList.contains('failed')", timeout=60_000)
+    assert s["status"] == "located" and s["progress"] is None, s["reason"]
+    # the bracket alone: no fixture of the library is reported where it stands (a parallel once was, fitted
+    # to its front edge at 51 %; two solids cannot fill the same space, so it is taken out)
+    assert [o["name"] for o in s["result"]["objects"]] == [PART], [(st["name"], st["message"]) for st in s["stages"]]
+    assert while_running and all(p["stage"] == "recognition" and 0 < p["done"] <= p["total"] for p in while_running)
+    seen = page.evaluate("() => window.__seen")
+    searched = [(text, pct, n) for text, pct, n in seen if text.startswith("Recognition: Searched ")]
+    assert searched, [t for t, _, _ in seen]
+    assert re.fullmatch(r"Recognition: Searched \d+ of \d+ models…", searched[0][0]), searched[0][0]
+    # within the stage the bar moves on, never back, and stays short of the next stage's place
+    pcts = [pct for _, pct, _ in searched]
+    assert pcts == sorted(pcts) and len(set(pcts)) >= 2, pcts
+    n = searched[0][2]
+    done_before = [pct for text, pct, k in seen if k == n and not text.startswith("Recognition")]
+    after = [pct for _, pct, k in seen if k == n + 1]
+    assert max(done_before, default=0) <= pcts[0] and pcts[-1] <= min(after), (done_before, pcts, after)
+    assert page.js_errors == []
+
+
 def test_failure_is_shown_as_a_reason_with_what_to_do(page, service):
     rng = np.random.default_rng(0)
     blank = np.clip(rng.normal(90, 12, (H, W)), 0, 255).astype(np.uint8)   # no table, no markers

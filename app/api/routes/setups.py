@@ -43,6 +43,8 @@ class SetupPublic(BaseModel):
     status: str = Field(description="queued | running | located | failed")
     reason: str = Field(description="Why it failed, in plain words (empty otherwise)")
     stages: list[dict] = Field(description="Per stage: name, ok, ms, message, data, image_url")
+    progress: dict | None = Field(default=None, description="While a long stage runs (recognition over the "
+                                  "library): {stage, done, total, message}; null otherwise")
     result: dict | None = Field(description="table (T_cam_table, markers used/rejected, rms_px) and objects "
                                             "(T_cam_obj, T_table_obj, score, uncertainty, ...), mm and degrees")
     result_revision: int
@@ -112,28 +114,31 @@ def get_setup(session: SessionDep, setup_id: int) -> SetupPublic:
     return to_public(svc.get_setup(session, setup_id))
 
 
-@router.get("/{setup_id}/events", summary="Progress as server-sent events (stage, status)",
+@router.get("/{setup_id}/events", summary="Progress as server-sent events (stage, progress, status)",
             response_class=StreamingResponse, responses={200: {"content": {"text/event-stream": {}}}})
 async def setup_events(request: Request, setup_id: int) -> StreamingResponse:
     engine = request.app.state.engine
     with transaction(engine) as session:
         svc.get_setup(session, setup_id)  # 404 before the stream starts
 
-    def snapshot() -> tuple[str, list[dict], str]:
+    def snapshot() -> tuple[str, list[dict], str, dict | None]:
         with transaction(engine) as session:
             s = svc.get_setup(session, setup_id)
-            return s.status, list(s.stages), s.reason
+            return s.status, list(s.stages), s.reason, s.progress
 
     async def stream():
-        sent_stages, last_status = 0, None
+        sent_stages, last_status, last_progress = 0, None, None
         for _ in range(20 * 60 * 10):  # at most 10 minutes, then the client reconnects
             if await request.is_disconnected():
                 return
-            st, stages, reason = await asyncio.to_thread(snapshot)
+            st, stages, reason, progress = await asyncio.to_thread(snapshot)
             for i in range(sent_stages, len(stages)):
                 stage = {k: v for k, v in stages[i].items() if k != "data"}
                 yield f"event: stage\ndata: {json.dumps({'index': i, **stage})}\n\n"
             sent_stages = len(stages)
+            if progress and progress != last_progress:   # the stage after the last one sent, under way
+                yield f"event: progress\ndata: {json.dumps({'index': sent_stages, **progress})}\n\n"
+            last_progress = progress
             if st != last_status:
                 yield f"event: status\ndata: {json.dumps({'status': st, 'reason': reason})}\n\n"
                 last_status = st

@@ -14,7 +14,7 @@ Given the table's pose ``T_cam_table`` (from its fiducials), the intrinsics and 
 * :mod:`.uncertainty` - the contact prior and the posterior covariance (the export gate's sigma);
 * :mod:`.locate` - :func:`locate_object`, which reads as these stages; :mod:`.recognise` - which
   library models are in the image; :mod:`.options` - :class:`LocateOptions`, one frozen object;
-* :mod:`.results` - :class:`ObjectPose`, :class:`ObjectFailure`, :class:`Recognition`.
+* :mod:`.results` - :class:`ObjectPose`, :class:`ObjectFailure`, :class:`Recognition`, :class:`Progress`.
 
 A fit that is not good enough, or not clearly better than a different pose, is returned as an
 :class:`ObjectFailure` with the reason; it is never returned as a pose.
@@ -28,7 +28,7 @@ from app.vision.object_pose.edge_image import EdgeImage, mask_known_edges, mask_
 from app.vision.object_pose.locate import locate_object
 from app.vision.object_pose.options import LocateOptions
 from app.vision.object_pose.recognise import recognise
-from app.vision.object_pose.results import ObjectFailure, ObjectPose, Recognition
+from app.vision.object_pose.results import ObjectFailure, ObjectPose, Progress, Recognition
 from app.vision.object_pose.uncertainty import SIGMA_SCALE
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "LocateOptions",
     "ObjectFailure",
     "ObjectPose",
+    "Progress",
     "Recognition",
     "SIGMA_SCALE",
     "draw_object",

@@ -5,6 +5,7 @@ and how much of the image each explains at the same place."""
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -14,12 +15,13 @@ from app.vision.blas_threads import one_blas_thread
 from app.vision.object_pose.edge_image import mask_known_edges, mask_table_regions, prepare_image
 from app.vision.object_pose.locate import coarse_starts, locate_object
 from app.vision.object_pose.options import OPTION_NAMES, LocateOptions
-from app.vision.object_pose.results import ObjectFailure, ObjectPose, Recognition
+from app.vision.object_pose.results import ObjectFailure, ObjectPose, Progress, Recognition
 
 
 @one_blas_thread
 def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, min_score: float = 0.6,
-              min_margin: float = 0.1, gamma: float = 2.2, n_full: int = 4, **locate_kw) -> Recognition:
+              min_margin: float = 0.1, gamma: float = 2.2, n_full: int = 4,
+              on_progress: Callable[[Progress], None] | None = None, **locate_kw) -> Recognition:
     """Which of ``candidates`` are in the image?
 
     Every candidate goes through the search and the planar fit (stages 1 and 2 of
@@ -37,6 +39,9 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     (``supported_edge_px`` 25 % higher) or, explaining about as much, scores within ``min_margin``.
     Different objects at different places can all be accepted (a workpiece and its clamps).
     Nothing accepted: ``reason`` starts with "not recognised:" and names the top candidates.
+    ``on_progress`` is told after each model's search and before each full fit (stage
+    "recognition"; ``total`` counts every search and the most full fits there may be), and once at
+    the end with ``done == total``. An exception it raises (the job stopped) ends the recognition.
     """
     t0 = time.perf_counter()
     K = np.asarray(K, dtype=float)
@@ -53,11 +58,18 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     # in ``eimg.cache`` and reused by the full locate of the best few
     opts = LocateOptions(gamma=gamma).with_(**{k: v for k, v in locate_kw.items() if k in OPTION_NAMES})
     scene_kw = {k: v for k, v in locate_kw.items() if k not in OPTION_NAMES}   # what locate_object is told
+    n, total = len(candidates), len(candidates) + min(2 * n_full, len(candidates))
+
+    def told(done: int, message: str) -> None:
+        if on_progress is not None:
+            on_progress(Progress("recognition", done, total, message))
+
     coarse = []
-    for m in candidates:
+    for k, m in enumerate(candidates):
         found = coarse_starts(eimg, K, dist, T_cam_table, m, opts, scene_kw.get("table_extent_xy"),
                               scene_kw.get("clamp_faces", ()))
         coarse.append(0.0 if isinstance(found, str) or not found[0] else float(found[0][0].score))
+        told(k + 1, f"searched {k + 1} of {n} models")
     order = np.argsort(-np.asarray(coarse), kind="stable")
     res = []
     fitted = tried = 0
@@ -68,6 +80,7 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
             # part (the clearer, the sharper; two poses of it within the margin are ambiguous): with a
             # margin of 0 setup_001's bracket took the reading a named locate sets aside, then found it
             # "ambiguous" against the one it keeps
+            told(n + tried, f"fitting {m.name}, the {_ordinal(tried + 1)} best of the search")
             r = locate_object(None, K, dist, T_cam_table, m, edge_image=eimg,
                               options=opts.with_(min_score=0.0, min_margin=min_margin), **scene_kw)
             tried += 1
@@ -80,6 +93,7 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     def score(r):
         return r.score if isinstance(r, ObjectPose) else r.best_score
 
+    told(total, f"searched {n} models, fitted {tried}")
     res.sort(key=lambda mr: -score(mr[1]))
     accepted = []
     ranked = []
@@ -118,3 +132,7 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
         reason = f"not recognised: no candidate reached {min_score:.0%} with a margin of {min_margin:.0%} (top: {top})"
     return Recognition(accepted=tuple(accepted), ranked=tuple(ranked), reason=reason,
                        timings_ms={"total": (time.perf_counter() - t0) * 1e3})
+
+
+def _ordinal(k: int) -> str:
+    return {1: "1st", 2: "2nd", 3: "3rd"}.get(k, f"{k}th")

@@ -165,3 +165,17 @@ class Recognition:
     def to_dict(self) -> dict:
         return {"ok": bool(self.accepted), "accepted": [a.to_dict() for a in self.accepted],
                 "ranked": list(self.ranked), "reason": self.reason, "timings_ms": dict(self.timings_ms)}
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Where a long stage stands while it runs: ``done`` of ``total`` steps (recognition: each library
+    model's search is a step, then each full fit of the best few), and what it is doing in words."""
+
+    stage: str
+    done: int
+    total: int
+    message: str
+
+    def to_dict(self) -> dict:
+        return {"stage": self.stage, "done": self.done, "total": self.total, "message": self.message}

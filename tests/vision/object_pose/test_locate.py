@@ -185,8 +185,28 @@ def test_recognition_accepts_the_part_and_refuses_absent_ones(models, clamped):
     # as the service does (localize): the markers' printed squares are not searched; a 32 x 24 mm
     # block fits their pattern well enough otherwise
     labels = marker_labels_table(scene.table_layout)
-    rec = recognise(r.image, K, DIST, scene.T_cam_table, cands, gamma=scene.gamma, known_regions=labels)
+    told = []
+    rec = recognise(r.image, K, DIST, scene.T_cam_table, cands, gamma=scene.gamma, known_regions=labels,
+                    on_progress=told.append)
     assert rec and rec.best.model_name == "bracket_140"
+    # how far it is, as it goes: each model's search, then each full fit, then done (3 searches, at
+    # most 3 fits: one per model)
+    assert [(p.done, p.total) for p in told][:3] == [(1, 6), (2, 6), (3, 6)]
+    assert [p.message for p in told][:3] == ["searched 1 of 3 models", "searched 2 of 3 models",
+                                             "searched 3 of 3 models"]
+    assert told[3].message.startswith("fitting ") and told[3].message.endswith(", the 1st best of the search")
+    assert told[-1].done == told[-1].total == 6 and told[-1].message.startswith("searched 3 models, fitted ")
+    assert all(p.stage == "recognition" for p in told) and [p.done for p in told] == sorted(p.done for p in told)
+
+    class Stopped(Exception):
+        pass
+
+    def stop(p):                          # the service's job timed out: its check raises
+        raise Stopped(p.message)
+
+    with pytest.raises(Stopped, match="searched 1 of 2 models"):
+        recognise(r.image, K, DIST, scene.T_cam_table, cands[:2], gamma=scene.gamma, known_regions=labels,
+                  on_progress=stop)
     assert [d["model"] for d in rec.ranked][0] == "bracket_140"
     assert all(p.model_name == "bracket_140" for p in rec.accepted)
     # told where the table top is, it searches a part's centre there (grown by half its size) and
