@@ -239,3 +239,240 @@ def synth_scene(entry: dict, width: int = 1920, height: int = 1200):
     sc = DevsetScene(gt=gt, K=K, dist=dist, layout=layout, workpiece=wpd,
                      table_candidate=Candidate("table", table, kind="table"), fixture_candidates=fixtures)
     return sc, r.image
+
+
+# --------------------------------------------------------------------------------------------------
+# the vise in shade: a family of its own (the devset's vise misses), the scenes above unchanged
+# --------------------------------------------------------------------------------------------------
+
+VISE_SHADE_N = 16
+VISES = ("vise_150", "vise_125")
+# per scene k: the part in the jaws cycles a tenon plate (a plate on a tenon held in the jaws, the
+# plate over the jaws), the library's pin block, a tenon plate again
+VISE_SHADE_PARTS = ("tenon_plate", "pin_block_32", "tenon_plate")
+
+
+def vise_shade_entry(k: int) -> dict:
+    """Scene k of the vise-in-shade family (:func:`vise_shade_scene`): the vise cycles vise_150 /
+    vise_125, the part :data:`VISE_SHADE_PARTS`; every scene is a vise scene."""
+    return {"source": "synth", "family": "vise_shade", "index": k, "scene_id": f"vshade_{k:03d}",
+            "fixture_mode": "vise", "vise": VISES[k % 2],
+            "workpiece": VISE_SHADE_PARTS[(k // 2) % len(VISE_SHADE_PARTS)]}
+
+
+def tenon_plate(tenon_mm: tuple[float, float, float], plate_mm: tuple[float, float, float, float],
+                chamfer_mm: float = 20.0, hole_d_mm: float = 14.0) -> trimesh.Trimesh:
+    """A plate on a tenon, one body: the tenon a box ``tenon_mm`` = (across, along, high) from the
+    origin (frame: its front-left bottom corner, x across the jaws, y along them, z up), the plate
+    ``plate_mm`` = (over the -x side, over the +x side, over each y end, thickness) on its top, its
+    (+x, +y) corner chamfered ``chamfer_mm`` and a hole ``hole_d_mm`` through it over the -x side:
+    seen from above the plate hides the tenon, and without these a half turn would look the same.
+    Held by the tenon in a vise, the plate overhangs the jaws and shades them. mm."""
+    from shapely.geometry import Polygon
+
+    w, L, h = tenon_mm
+    ox0, ox1, oy, t = plate_mm
+    x0, x1, y0, y1 = -ox0, w + ox1, -oy, L + oy
+    c = chamfer_mm
+    outline = Polygon([(x0, y0), (x1, y0), (x1, y1 - c), (x1 - c, y1), (x0, y1)])
+    plate = trimesh.creation.extrude_polygon(outline, t)
+    plate.apply_translation([0.0, 0.0, h])
+    tenon = trimesh.creation.box(bounds=[[0.0, 0.0, 0.0], [w, L, h]])
+    hole = trimesh.creation.cylinder(radius=0.5 * hole_d_mm, height=t + 2.0, sections=32,
+                                     transform=make_pose(None, [0.5 * x0, y0 + 0.3 * (y1 - y0), h + 0.5 * t]))
+    body = trimesh.boolean.union([tenon, plate], engine="manifold")
+    return trimesh.boolean.difference([body, hole], engine="manifold")
+
+
+# the share of the vise's top faces (upward, area-weighted, not under the part) the spindle and the
+# part shade at least, unless 8 spindle places all fall short (the best of them is kept)
+MIN_TOP_SHADE = 0.3
+
+
+def _top_points(mesh: trimesh.Trimesh, T_table_obj: np.ndarray, rng, n: int = 1500) -> np.ndarray:
+    """``n`` points (table frame, mm) spread over ``mesh``'s upward faces (normal z > 0.5) by area."""
+    up = np.nonzero(mesh.face_normals[:, 2] > 0.5)[0]
+    f = rng.choice(up, n, p=mesh.area_faces[up] / mesh.area_faces[up].sum())
+    a, b = rng.random(n), rng.random(n)
+    flip = a + b > 1.0
+    a[flip], b[flip] = 1.0 - a[flip], 1.0 - b[flip]
+    tri = mesh.triangles[f]
+    P = tri[:, 0] + a[:, None] * (tri[:, 1] - tri[:, 0]) + b[:, None] * (tri[:, 2] - tri[:, 0])
+    return transform_points(T_table_obj, P)
+
+
+def _shaded(P: np.ndarray, light: np.ndarray, occluders: list[SceneObject]) -> np.ndarray:
+    """Which of the points ``P`` (table frame, mm) the ``occluders`` shade from the directional
+    ``light`` (unit, towards the lamp): rays cast from 0.2 mm off each point."""
+    occ = trimesh.util.concatenate([o.mesh.copy().apply_transform(o.T_table_obj) for o in occluders])
+    return occ.ray.intersects_any(P + 0.2 * light, np.tile(light, (len(P), 1)))
+
+
+def _vise_spindle(radius_mm: float) -> trimesh.Trimesh:
+    """A spindle with its tool (frame: the tool's tip, z up): tool d10 x 60, quill ``radius_mm`` x 250."""
+    return trimesh.util.concatenate([
+        trimesh.creation.cylinder(radius=5.0, height=60.0, sections=24, transform=make_pose(None, [0, 0, 30.0])),
+        trimesh.creation.cylinder(radius=radius_mm, height=250.0, sections=48,
+                                  transform=make_pose(None, [0, 0, 185.0]))])
+
+
+def vise_shade_objects(rng, k: int, lib: dict, vise_key: str, part_key: str, light: np.ndarray
+                       ) -> list[SceneObject]:
+    """The set of scene ``k``: the part on parallels in the vise (:func:`in_vise`; a tenon plate is
+    placed by its tenon, the plate 4-12 mm above the jaw tops), and a spindle placed so that the
+    shadow of its quill (low lamp ``light``, unit, table frame) falls across the vise's top
+    (:data:`MIN_TOP_SHADE`). All poses
+    in the table frame, mm; the workpiece first, then the vise, the parallels, the spindle."""
+    v, par = lib[vise_key], lib["parallel_150x25x8"]
+    seat = v.support_surfaces[0]
+    xs = [p[0] for p in seat["outline_xy"]]
+    opening = max(xs) - min(xs)
+    jaw_top = float(v.mesh.bounds[1, 2])
+    x, y = rng.uniform(300, 500), rng.uniform(160, 240)
+    if part_key == "tenon_plate":
+        h_par = float(par.mesh.bounds[1, 2])
+        w = opening - rng.uniform(12.0, 30.0)                       # across the jaws, clear of the moving jaw
+        L = rng.uniform(0.55, 0.9) * 2 * abs(seat["outline_xy"][0][1])
+        h = jaw_top - (float(seat["z_mm"]) + h_par) + rng.uniform(4.0, 12.0)
+        plate = (rng.uniform(30.0, 90.0), rng.uniform(30.0, 90.0), rng.uniform(0.0, 50.0), rng.uniform(12.0, 25.0))
+        mesh = tenon_plate((w, max(L, w + 10.0), h), plate, chamfer_mm=rng.uniform(15.0, 25.0))
+        # placed by its tenon (the same frame): in_vise sees a box as narrow as the tenon
+        tenon = trimesh.creation.box(bounds=[[0.0, 0.0, 0.0], [w, max(L, w + 10.0), h]])
+        objs = in_vise(rng, part_key, tenon, v.mesh, v.key, seat, par.mesh, par.key, x, y)
+        objs[0] = SceneObject(part_key, mesh, objs[0].T_table_obj, albedo=objs[0].albedo)
+    else:
+        mesh = lib[part_key].mesh
+        objs = in_vise(rng, part_key, mesh, v.mesh, v.key, seat, par.mesh, par.key, x, y)
+    if k % 4 >= 2:                                                  # a dark part (oxide, cast iron)
+        objs[0] = dataclasses.replace(objs[0], albedo=float(rng.uniform(0.15, 0.28)))
+    # the spindle: its quill's shadow passes through a point p of the vise's top (between the fixed
+    # jaw's back and the moving jaw's far side); from the low lamp it reaches far beyond the vise.
+    # Drawn again (up to 8 times) until at least MIN_TOP_SHADE of the vise's top faces not under the
+    # part are in shade (the part's and the spindle's shadows): the band may miss the vise or fall
+    # where the part covers the vise anyway
+    T_vise = objs[1].T_table_obj
+    top = max(float(transform_points(objs[0].T_table_obj, mesh.vertices)[:, 2].max()), jaw_top)
+    tops = _top_points(v.mesh, T_vise, np.random.default_rng(17000 + k))
+    tops = tops[~_shaded(tops, np.array([0.0, 0.0, 1.0]), objs[:1])]    # not under the part: seen from above
+    best = (-1.0, None)
+    for _ in range(8):
+        p_vise = np.array([rng.uniform(-40.0, opening + 60.0), rng.uniform(-40.0, 40.0), jaw_top + 1.0])
+        hit, _, _ = v.mesh.ray.intersects_location(p_vise[None], np.array([[0.0, 0.0, -1.0]]))
+        if len(hit):                                                # on the vise's top face there
+            p_vise[2] = float(hit[:, 2].max())
+        p = transform_points(T_vise, p_vise[None])[0]
+        z0 = top + rng.uniform(40.0, 150.0)                          # the tool's tip
+        z_hit = z0 + 60.0 + rng.uniform(0.0, 80.0)                    # the quill's height whose shadow falls on p
+        axis = p[:2] + light[:2] / light[2] * (z_hit - p[2])
+        spindle = SceneObject("spindle", _vise_spindle(float(rng.uniform(40.0, 60.0))),
+                              make_pose(None, [axis[0], axis[1], z0]), albedo=0.6)
+        share = float(np.mean(_shaded(tops, light, objs[:1] + objs[2:] + [spindle])))
+        if share > best[0]:
+            best = (share, spindle)
+        if share >= MIN_TOP_SHADE:
+            break
+    objs.append(best[1])
+    return objs
+
+
+def shaded_fraction(objs: list[SceneObject], index: int, light: np.ndarray, depth_mm: np.ndarray,
+                    labels: np.ndarray, K: np.ndarray, dist: np.ndarray, T_cam_table: np.ndarray,
+                    n_samples: int = 3000, seed: int = 0) -> float:
+    """Share of object ``index``'s visible pixels (label 2 + index) whose surface point is shaded from
+    the directional ``light`` (unit, table frame) by another object of ``objs`` (the vise's own jaws
+    shading its seat do not count): up to ``n_samples`` pixels, rays cast towards the light."""
+    import cv2
+
+    v, u = np.nonzero(labels == 2 + index)
+    if len(v) == 0:
+        return 0.0
+    pick = np.random.default_rng(seed).choice(len(v), min(n_samples, len(v)), replace=False)
+    v, u = v[pick], u[pick]
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)
+    xy = cv2.undistortPoints(np.column_stack([u, v]).astype(np.float64)[:, None], K, dist, criteria=crit).reshape(-1, 2)
+    z = depth_mm[v, u].astype(np.float64)
+    P = transform_points(inv(T_cam_table), np.column_stack([xy * z[:, None], z]))
+    return float(np.mean(_shaded(P, light, [o for i, o in enumerate(objs) if i != index])))
+
+
+def vise_shade_scene(entry: dict, width: int = 1920, height: int = 1200):
+    """Render scene ``entry`` (:func:`vise_shade_entry`): (DevsetScene, image), the vise in the hard
+    conditions of the devset's vise misses. A low lamp (20-35 deg above the table) with a spindle
+    whose shadow falls across the vise, the part's own shadow (a tenon plate overhangs the jaws), a
+    dim ambient (0.12-0.25), vignetting 20-50 %, every other scene a dark part, scenes k % 4 in (1, 2)
+    a low camera (20-35 deg elevation, else 35-65), every third one JPEG (quality 80-92), the others
+    PNG; all mono (our renderer draws grey), some under-exposed (exposure 0.55-1.0). The camera,
+    550-1200 mm away, looks at the vise; up to 12 draws until >= 3 markers, the part (>= 2000 px) and
+    >= 30 % of the vise are seen. Seeded per scene index; the other scenes of this module draw from
+    generators of their own, so they are unchanged. The ground truth lists the vise (its visible and
+    shaded share) and the parallels."""
+    from app.geometry import parts
+    from app.geometry.model_edges import render_depth
+    from app.synth.devset import DevsetScene
+    from app.synth.scene import Scene, look_at_pose, project_points, random_intrinsics, render_scene
+    from app.vision.localize import Candidate
+
+    k = int(entry["index"])
+    rng = np.random.default_rng(13000 + k)
+    lib = {m.key: m for m in parts.example_library()}
+    vk, pk = entry["vise"], entry["workpiece"]
+    el_l, az_l = np.radians(rng.uniform(20.0, 35.0)), rng.uniform(0.0, 2 * np.pi)
+    light = np.array([np.cos(el_l) * np.cos(az_l), np.cos(el_l) * np.sin(az_l), np.sin(el_l)])
+    objs = vise_shade_objects(rng, k, lib, vk, pk, light)
+    part, vise = objs[0], objs[1]
+    seat = lib[vk].support_surfaces[0]
+    target = transform_points(vise.T_table_obj, np.array([[0.5 * seat["outline_xy"][2][0], 0.0, 0.0]]))[0]
+    table, layout = parts.tslot_table(), parts.tslot_table_layout()
+    low = k % 4 in (1, 2)
+    scale = width / 1920.0                      # focal lengths as at 1920 px (a smaller test image)
+    spindle_xy, spindle_top = objs[-1].T_table_obj[:2, 3], float(objs[-1].T_table_obj[2, 3]) + 310.0
+    jpeg = int(rng.integers(80, 93)) if k % 3 == 0 else None
+    common = dict(vignetting=float(rng.uniform(0.2, 0.5)), ambient=float(rng.uniform(0.12, 0.25)),
+                  exposure=float(rng.uniform(0.55, 1.0)), table_albedo=0.3 if k % 4 >= 2 else 0.42,
+                  noise_sigma=float(rng.uniform(1.0, 3.0)), blur_sigma_px=float(rng.uniform(0.4, 1.0)),
+                  jpeg_quality=jpeg)
+    unit_square = np.array([[-1, 1, 0], [1, 1, 0], [1, -1, 0], [-1, -1, 0]], float)
+    for _ in range(12):
+        K, dist = random_intrinsics(rng, width, height, focal_px=(1400.0 * scale, 2000.0 * scale))
+        d = rng.uniform(550.0, 1200.0)
+        el = np.radians(rng.uniform(20.0, 35.0) if low else rng.uniform(35.0, 65.0))
+        az = rng.uniform(0, 2 * np.pi)
+        pos = target + d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        T_cam_table = look_at_pose(pos, target + rng.uniform(-40, 40, 3) * [1, 1, 0], rng.uniform(-10, 10))
+        if np.hypot(*(pos[:2] - spindle_xy)) < 90.0 and pos[2] < spindle_top:
+            continue                                                 # the camera inside the spindle
+        # cheap checks first: markers whose corners are all in the image (before occlusion)
+        n_in = 0
+        for m in layout["markers"]:
+            uv = project_points(K, dist, T_cam_table, transform_points(np.asarray(m["T_table_marker"]),
+                                                                          0.5 * float(m["size_mm"]) * unit_square))
+            n_in += int(np.all((uv >= 0) & (uv <= [width - 1, height - 1])))
+        if n_in < 3:
+            continue
+        scene = Scene(width=width, height=height, K=K, dist=dist, T_cam_table=T_cam_table, table_mesh=table,
+                      table_layout=layout, objects=objs, light_dir_table=light, **common)
+        r = render_scene(scene, rng)
+        seen = [int(i) for i, vis in r.truth["marker_visible"].items() if vis]
+        V = transform_points(T_cam_table @ vise.T_table_obj, vise.mesh.vertices)
+        sil = int(np.isfinite(render_depth([(V, vise.mesh.faces)], K, width, height,
+                                           max_pixel_tests=50_000_000)[0]).sum())
+        vise_vis = float(min(1.0, np.count_nonzero(r.labels == 3) / max(sil, 1)))
+        if len(seen) >= 3 and np.count_nonzero(r.labels == 2) > 2000 * scale ** 2 and vise_vis >= 0.3:
+            break
+    V = transform_points(T_cam_table @ part.T_table_obj, part.mesh.vertices)
+    sil = int(np.isfinite(render_depth([(V, part.mesh.faces)], K, width, height, max_pixel_tests=50_000_000)[0]).sum())
+    part_vis = float(min(1.0, np.count_nonzero(r.labels == 2) / max(sil, 1)))
+    shade = shaded_fraction(objs, 1, light, r.depth_mm, r.labels, K, dist, T_cam_table, seed=k)
+    gt = {"visible_marker_ids": seen, "fixture_mode": "vise", "light_dir_table": light.tolist(),
+          "camera_elevation_deg": float(np.degrees(el)), "jpeg_quality": jpeg,
+          "objects": [{"name": vise.name, "kind": "clamp", "subtype": "vise", "mesh_obj": vise.mesh,
+                       "T_table_object": vise.T_table_obj.tolist(), "visible_fraction": vise_vis,
+                       "shaded_fraction": shade}]
+          + [{"name": o.name.replace("#", "_"), "kind": "support", "subtype": "parallel", "mesh_obj": o.mesh,
+              "T_table_object": o.T_table_obj.tolist()} for o in objs if o.name.startswith("parallel")]}
+    wpd = {"name": pk, "mesh_obj": part.mesh, "T_table_object": part.T_table_obj.tolist(), "visible_fraction": part_vis}
+    fixtures = [Candidate(m.key, m.mesh, kind=m.kind, support_surfaces=m.support_surfaces)
+                for m in (lib[vk], lib["parallel_150x25x8"])]
+    sc = DevsetScene(gt=gt, K=K, dist=dist, layout=layout, workpiece=wpd,
+                     table_candidate=Candidate("table", table, kind="table"), fixture_candidates=fixtures)
+    return sc, r.image

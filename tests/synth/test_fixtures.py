@@ -12,11 +12,15 @@ from app.geometry.transforms import transform_points
 from app.synth.fixtures import (
     CLAMPS_FROM,
     SHOP_FROM,
+    VISE_SHADE_N,
     in_vise,
     on_parallels,
     shop_conditions,
     synth_entry,
     under_strap_clamps,
+    vise_shade_entry,
+    vise_shade_objects,
+    vise_shade_scene,
 )
 from app.synth.scene import SceneObject, place_on_table
 
@@ -116,3 +120,43 @@ def test_clamp_scenes_follow_the_older_ones():
     assert all(synth_entry(k)["clamps"] and synth_entry(k)["fixture_mode"] == "table"
                for k in range(CLAMPS_FROM, CLAMPS_FROM + 8))
     assert len({synth_entry(k)["workpiece"] for k in range(CLAMPS_FROM, CLAMPS_FROM + 8)}) == 4
+
+
+def test_vise_shade_scenes_hold_the_part_in_the_jaws_under_a_shading_spindle(lib):
+    """Each set of the vise-in-shade family: the part stands in the vise without passing through it
+    (a tenon plate's plate above the jaw tops), and the spindle and the part shade at least
+    MIN_TOP_SHADE of the vise's top faces not under the part (or the best of 8 spindle places).
+    Scenes 0 and 3: a tenon plate in vise_150, the pin block in vise_125."""
+    for k in (0, 3):
+        e = vise_shade_entry(k)
+        assert e["fixture_mode"] == "vise" and e["scene_id"] == f"vshade_{k:03d}"
+        light = np.array([0.6, 0.3, 0.5]) / np.linalg.norm([0.6, 0.3, 0.5])
+        objs = vise_shade_objects(np.random.default_rng(k), k, lib, e["vise"], e["workpiece"], light)
+        part, vise = objs[0], objs[1]
+        assert [o.name for o in objs][1] == e["vise"] and objs[-1].name == "spindle"
+        assert _overlap_volume(part, vise) < 1.0
+        if e["workpiece"] == "tenon_plate":
+            assert _zrange(part)[1] > float(vise.mesh.bounds[1, 2])      # the plate over the jaws
+        assert _zrange(objs[-1])[0] > max(_zrange(part)[1], _zrange(vise)[1])   # the tool above everything
+
+
+@pytest.mark.slow
+def test_vise_shade_scene_renders_the_same_twice_with_the_vise_seen_in_part_and_shaded():
+    """A small render (480 x 300) of the family's scene 1: the same image twice (seeded per scene
+    index), and the ground truth holds the vise, partly hidden and partly in cast shade."""
+    a_sc, a = vise_shade_scene(vise_shade_entry(1), width=480, height=300)
+    b_sc, b = vise_shade_scene(vise_shade_entry(1), width=480, height=300)
+    assert np.array_equal(a, b)
+    assert np.allclose(a_sc.gt["objects"][0]["T_table_object"], b_sc.gt["objects"][0]["T_table_object"])
+    v = a_sc.gt["objects"][0]
+    assert v["name"] == "vise_125" and v["subtype"] == "vise"
+    assert 0.3 <= v["visible_fraction"] < 0.95
+    assert v["shaded_fraction"] > 0.2
+    assert len(a_sc.gt["visible_marker_ids"]) >= 3
+    assert [c.name for c in a_sc.fixture_candidates] == ["vise_125", "parallel_150x25x8"]
+
+
+def test_the_vise_shade_family_leaves_the_generated_set_alone():
+    """The family has its own entries; synth_entry's scenes keep their ids and modes."""
+    assert all(synth_entry(k)["scene_id"] == f"synth_{k:03d}" and "family" not in synth_entry(k) for k in range(44))
+    assert len({vise_shade_entry(k)["vise"] for k in range(VISE_SHADE_N)}) == 2
