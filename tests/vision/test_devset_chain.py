@@ -479,6 +479,28 @@ def _recognised_among_a_bar_and_a_block(scene_id: str):
     return res, next(st for st in stages if st.name == "recognition"), sc, wp, others
 
 
+def test_of_two_parts_recognised_the_one_that_explains_most_of_the_picture_comes_first():
+    """Devset setup_003: the slotted plate on the table, and clutter beside it that a 26 mm pin block fits
+    (a higher score than the plate's, a tenth of its edges). The first workpiece's datum is the offset the
+    page proposes: it is the plate's."""
+    from app.geometry import parts
+
+    small = parts.pin_block_32()
+    small.apply_scale(0.8)
+    sc, image, wp = _scene("setup_003")
+    block = Candidate("pin_block_32_x0.8", small)
+    stages = []
+    res = localize(image, sc.K, sc.dist, sc.layout, [block, wp] + sc.fixture_candidates,
+                   table_model=sc.table_candidate, recognise=True, riser_heights_mm=SHOP_PARALLELS,
+                   on_stage=stages.append)
+    parts_found = [o for o in res.objects if o["kind"] == "workpiece"]
+    assert parts_found[0]["name"] == wp.name, [(o["name"], o["score"], o["supported_edge_px"]) for o in parts_found]
+    explained = [o["supported_edge_px"] for o in parts_found]
+    assert explained == sorted(explained, reverse=True)
+    rec = next(st for st in stages if st.name == "recognition")
+    assert rec.message.startswith(f"recognised {wp.name}"), rec.message
+
+
 def test_recognition_searches_its_best_few_again_over_risers_of_any_height_when_it_finds_nothing():
     """Devset setup_029: the L bracket on parallels in the vise, which it hides (the vise is not located).
     On the table and the declared risers' tops nothing fits well enough; searched again as a named part
