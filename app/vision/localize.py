@@ -378,7 +378,7 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                                                  table_extent_xy=table_top, search_threads=search_threads,
                                                  **kind_options(cand.kind))
             _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table)
-    located = _drop_overlapping(located, not_found, done)
+    located = _drop_overlapping(located, not_found, done, fixtures_asked=not recognise)
     for i, (cand, pose) in enumerate(located):
         objects.append(object_entry(cand, pose, COLOURS[i % len(COLOURS)]))
     overlay = draw_overlay(image, K, dist, table, located)
@@ -401,10 +401,13 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
                           {"table": table_ms, "total": (time.perf_counter() - t_all) * 1e3})
 
 
-def _drop_overlapping(located: list, not_found: list, done: Callable[[Stage], None]) -> list:
+def _drop_overlapping(located: list, not_found: list, done: Callable[[Stage], None], *,
+                      fixtures_asked: bool = True) -> list:
     """``located`` without the objects that would fill the same space as another: of a fixture and a
     workpiece whose solids overlap by more than :data:`OVERLAP_MAX` of either, the one that explains
-    fewer image edges is taken out (to ``not_found``, with the reason, and said in a stage)."""
+    fewer image edges is taken out, said in a stage and added to ``not_found`` with the reason: a
+    workpiece always, a fixture where it was asked for (``fixtures_asked``; recognition looks for
+    every fixture of the library, and one that is not there is no object missing)."""
     t = time.perf_counter()
     points: dict[int, np.ndarray] = {}
 
@@ -429,12 +432,13 @@ def _drop_overlapping(located: list, not_found: list, done: Callable[[Stage], No
             out.remove(drop)
             reason = (f"taken out: it would fill the same space as {keep[0].name} ({share:.0%} of one of them "
                       f"inside the other), which explains more of the picture's edges")
-            not_found.append({"name": drop[0].name, "model_id": drop[0].model_id, "reason": reason,
-                              "kind": "overlaps"})
-            notes.append(f"{drop[0].name} {reason}")
+            entry = {"name": drop[0].name, "model_id": drop[0].model_id, "reason": reason, "kind": "overlaps"}
+            if fixtures_asked or drop[0].kind == "workpiece":
+                not_found.append(entry)
+            notes.append(entry)
     if notes:
-        done(Stage("solid check", True, (time.perf_counter() - t) * 1e3, "; ".join(notes),
-                   {"taken_out": [n for n in not_found if n.get("kind") == "overlaps"]}))
+        done(Stage("solid check", True, (time.perf_counter() - t) * 1e3,
+                   "; ".join(f"{n['name']} {n['reason']}" for n in notes), {"taken_out": notes}))
     return out
 
 

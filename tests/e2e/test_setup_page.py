@@ -405,6 +405,7 @@ def test_recognition_shows_how_far_it_is_while_it_runs(page, service, scene):
     # the bracket alone: no fixture of the library is reported where it stands (a parallel once was, fitted
     # to its front edge at 51 %; two solids cannot fill the same space, so it is taken out)
     assert [o["name"] for o in s["result"]["objects"]] == [PART], [(st["name"], st["message"]) for st in s["stages"]]
+    assert s["reason"] == "", s["reason"]          # a fixture of the library that is not there is no object missing
     assert while_running and all(p["stage"] == "recognition" and 0 < p["done"] <= p["total"] for p in while_running)
     seen = page.evaluate("() => window.__seen")
     searched = [(text, pct, n) for text, pct, n in seen if text.startswith("Recognition: Searched ")]
