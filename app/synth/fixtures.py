@@ -134,6 +134,14 @@ SHOP_FROM = 24
 CLAMPS_FROM = 36
 
 
+def spindle_mesh(radius_mm: float) -> trimesh.Trimesh:
+    """A spindle with its tool (frame: the tool's tip, z up): tool d10 x 60, quill ``radius_mm`` x 250."""
+    return trimesh.util.concatenate([
+        trimesh.creation.cylinder(radius=5.0, height=60.0, sections=24, transform=make_pose(None, [0, 0, 30.0])),
+        trimesh.creation.cylinder(radius=radius_mm, height=250.0, sections=48,
+                                  transform=make_pose(None, [0, 0, 185.0]))])
+
+
 def shop_conditions(k: int, objs: list[SceneObject]) -> dict:
     """What scene ``k`` adds to the fixture set: a spindle with its tool above the part (in view
     from most angles), vignetting (30-60 % darker in the corners), a low lamp (hard long shadows),
@@ -144,9 +152,7 @@ def shop_conditions(k: int, objs: list[SceneObject]) -> dict:
     top = float(transform_points(part.T_table_obj, part.mesh.vertices)[:, 2].max())
     c = part.T_table_obj[:3, 3]
     z0 = top + rng.uniform(60.0, 200.0)
-    spindle = trimesh.util.concatenate([
-        trimesh.creation.cylinder(radius=5.0, height=60.0, sections=24, transform=make_pose(None, [0, 0, 30.0])),
-        trimesh.creation.cylinder(radius=40.0, height=250.0, sections=48, transform=make_pose(None, [0, 0, 185.0]))])
+    spindle = spindle_mesh(40.0)
     off = rng.uniform(-60.0, 60.0, 2)
     out = list(objs) + [SceneObject("spindle", spindle, make_pose(None, [c[0] + off[0], c[1] + off[1], z0]),
                                     albedo=0.6)]
@@ -308,14 +314,6 @@ def _shaded(P: np.ndarray, light: np.ndarray, occluders: list[SceneObject]) -> n
     return occ.ray.intersects_any(P + 0.2 * light, np.tile(light, (len(P), 1)))
 
 
-def _vise_spindle(radius_mm: float) -> trimesh.Trimesh:
-    """A spindle with its tool (frame: the tool's tip, z up): tool d10 x 60, quill ``radius_mm`` x 250."""
-    return trimesh.util.concatenate([
-        trimesh.creation.cylinder(radius=5.0, height=60.0, sections=24, transform=make_pose(None, [0, 0, 30.0])),
-        trimesh.creation.cylinder(radius=radius_mm, height=250.0, sections=48,
-                                  transform=make_pose(None, [0, 0, 185.0]))])
-
-
 def vise_shade_objects(rng, k: int, lib: dict, vise_key: str, part_key: str, light: np.ndarray
                        ) -> list[SceneObject]:
     """The set of scene ``k``: the part on parallels in the vise (:func:`in_vise`; a tenon plate is
@@ -364,7 +362,7 @@ def vise_shade_objects(rng, k: int, lib: dict, vise_key: str, part_key: str, lig
         z0 = top + rng.uniform(40.0, 150.0)                          # the tool's tip
         z_hit = z0 + 60.0 + rng.uniform(0.0, 80.0)                    # the quill's height whose shadow falls on p
         axis = p[:2] + light[:2] / light[2] * (z_hit - p[2])
-        spindle = SceneObject("spindle", _vise_spindle(float(rng.uniform(40.0, 60.0))),
+        spindle = SceneObject("spindle", spindle_mesh(float(rng.uniform(40.0, 60.0))),
                               make_pose(None, [axis[0], axis[1], z0]), albedo=0.6)
         share = float(np.mean(_shaded(tops, light, objs[:1] + objs[2:] + [spindle])))
         if share > best[0]:

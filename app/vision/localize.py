@@ -417,9 +417,6 @@ def _drop_overlapping(located: list, not_found: list, done: Callable[[Stage], No
             points[id(ca)] = interior_points(ca.mesh)
         return share_inside(ca.mesh, pa.T_table_obj, cb.mesh, pb.T_table_obj, points[id(ca)])
 
-    def explains(cp) -> float:    # image edges (px) its fit explains; CAD and photo poses both say
-        return float(cp[1].supported_edge_px)
-
     out, notes = list(located), []
     for f in [x for x in located if x[0].kind in FIXTURE_KINDS]:
         for w in [x for x in located if x[0].kind == "workpiece"]:
@@ -428,7 +425,8 @@ def _drop_overlapping(located: list, not_found: list, done: Callable[[Stage], No
             share = max(inside(f, w), inside(w, f))
             if share <= OVERLAP_MAX:
                 continue
-            keep, drop = (w, f) if explains(w) >= explains(f) else (f, w)
+            # image edges (px) each fit explains: CAD and photo poses both say
+            keep, drop = (w, f) if w[1].supported_edge_px >= f[1].supported_edge_px else (f, w)
             out.remove(drop)
             reason = (f"taken out: it would fill the same space as {keep[0].name} ({share:.0%} of one of them "
                       f"inside the other), which explains more of the picture's edges")

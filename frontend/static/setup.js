@@ -176,8 +176,11 @@ function showProgress(p) {
   const n = $("stages").children.length;
   const within = Math.min(1, p.done / p.total);
   setProgress(100 * (n + within) / (state.expectedStages + 0.5), "");
-  const words = p.message.charAt(0).toUpperCase() + p.message.slice(1);
-  $("step").textContent = `${p.stage.charAt(0).toUpperCase() + p.stage.slice(1)}: ${words}…`;
+  $("step").textContent = `${capitalised(p.stage)}: ${capitalised(p.message)}…`;
+}
+
+function capitalised(text) {
+  return text.charAt(0).toUpperCase() + text.slice(1);
 }
 
 function follow(id, eventsUrl) {
