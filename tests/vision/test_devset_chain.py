@@ -24,7 +24,7 @@ if not (DEVSET / "manifest.json").exists():
     pytest.skip(f"the devset is not beside the repository ({DEVSET})", allow_module_level=True)
 
 
-# prepared models by (mesh file, kind), kept for the module as the service keeps them per model revision
+# prepared models by (mesh file, kind, name), kept for the module as the service keeps them per model revision
 # (services/setups.py): the devset's vise alone took 1.1 s to prepare in every test
 _PREPARED: dict = {}
 

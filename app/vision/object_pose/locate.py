@@ -266,7 +266,8 @@ class LocateContext:
         """:func:`unexplained_edges` of the part at ``T_table_obj``, once per pose."""
         key = np.asarray(T, float).tobytes()
         if key not in self._unexplained:
-            self._unexplained[key] = unexplained_edges(self.eimg, self.model, self.T_cam_table @ T, self.K, self.dist)
+            self._unexplained[key] = unexplained_edges(self.eimg, self.model, self.T_cam_table @ T, self.K, self.dist,
+                                                       lines_across=self.opts.lines_across)
         return self._unexplained[key]
 
     def sharp(self, T: np.ndarray) -> float:

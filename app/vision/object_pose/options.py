@@ -30,6 +30,9 @@ class LocateOptions:
         turned as much (fits onto a single straight edge or onto texture do not drop and are refused)
     max_unexplained : largest share of the image's edge pixels inside the fitted outline that the
         model may leave unexplained (a part hides what lies behind it); 1.0 turns the test off
+    lines_across : leave the longest straight lines across the outline (a cast shadow) out of that
+        share (``verify.on_lines_across``); recognition turns it off: among 20 models it let three
+        wrong parts in on the devset (setup_016, 024, 031) and cost 024 its right one
     max_tilt_deg : residual tilt above which (and above 3 sigma) the result carries the "tilt" flag
     max_sigma_mm, max_sigma_deg : tolerances on the 1-sigma uncertainty (``uncertainty_ok``)
     n_starts : search peaks per resting state and height; ``n_planar`` : best of those aligned in the
@@ -60,6 +63,7 @@ class LocateOptions:
     min_margin: float = 0.1
     min_distinctiveness: float = 0.1
     max_unexplained: float = 0.7
+    lines_across: bool = True
     max_tilt_deg: float = 0.5
     max_sigma_mm: float = 0.2
     max_sigma_deg: float = 0.1

@@ -56,7 +56,9 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
         eimg = mask_table_regions(eimg, regions, T_cam_table, K, dist)
     # the search as locate_object will run it (its options, the jaws' starts): its results are kept
     # in ``eimg.cache`` and reused by the full locate of the best few
-    opts = LocateOptions(gamma=gamma).with_(**{k: v for k, v in locate_kw.items() if k in OPTION_NAMES})
+    # a shadow line across a part is set aside only where the part was asked for (LocateOptions.lines_across)
+    opts = LocateOptions(gamma=gamma, lines_across=False).with_(
+        **{k: v for k, v in locate_kw.items() if k in OPTION_NAMES})
     scene_kw = {k: v for k, v in locate_kw.items() if k not in OPTION_NAMES}   # what locate_object is told
     n, total = len(candidates), len(candidates) + min(2 * n_full, len(candidates))
 

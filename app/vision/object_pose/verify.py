@@ -35,9 +35,11 @@ def same_up_to_symmetry(model: PreparedModel, T1, T2, pos_tol, ang_tol, exact_on
 
 
 def unexplained_edges(eimg: EdgeImage, model: PreparedModel, T_cam_obj, K, dist, inset_px: float = 3.0,
-                       tol_px: float = 2.0) -> float:
+                       tol_px: float = 2.0, lines_across: bool = True) -> float:
     """Share of the image's edge pixels inside the model's projected outline that lie farther than
-    ``tol_px`` from every visible model edge (pinhole coordinates; the outline shrunk by ``inset_px``)."""
+    ``tol_px`` from every visible model edge (pinhole coordinates; the outline shrunk by ``inset_px``);
+    with ``lines_across``, the pixels on straight lines across the outline (:func:`on_lines_across`)
+    are left out of both counts."""
     key = ("undist", K.tobytes(), np.asarray(dist).tobytes())
     if key not in eimg.cache:
         eimg.cache[key] = (cv2.undistortPoints(eimg.edge_uv.reshape(-1, 1, 2), K, dist, P=K).reshape(-1, 2)
@@ -71,7 +73,7 @@ def unexplained_edges(eimg: EdgeImage, model: PreparedModel, T_cam_obj, K, dist,
         return 1.0
     d, _ = cKDTree(es.uv_px).query(uv_u[inside], distance_upper_bound=tol_px + model.sample_step_mm * s * 4)
     far = d > tol_px + 0.5 * model.sample_step_mm * K[0, 0] / float(np.median(V[:, 2]))
-    across = on_lines_across(iu[inside], iv[inside], far, mask)
+    across = on_lines_across(iu[inside], iv[inside], far, mask) if lines_across else np.zeros(len(far), bool)
     if (~across).sum() < 10:
         return 0.0
     return float(np.mean(far[~across]))

@@ -37,7 +37,7 @@ def test_a_line_across_the_outline_is_set_aside_and_the_rest_is_not():
     iu, iv = _pixels(line + dots)
     far = np.ones(len(iu), bool)
     across = on_lines_across(iu, iv, far, OUTLINE)
-    on_line = {p for p in line}
+    on_line = set(line)
     got = {(u, v) for u, v, a in zip(iu, iv, across) if a}
     assert len(got & on_line) >= 0.95 * len(on_line)
     assert len(got - on_line) <= 3                  # only dots that happen to lie on the line
@@ -109,3 +109,7 @@ def test_a_shadow_across_the_part_leaves_nothing_unexplained_but_clutter_does(pl
     cluttered = unexplained_edges(prepare_image(_picture(top, clutter)), model, T_cam_obj, K, np.zeros(5))
     assert plain < 0.1 and shaded < 0.2, (plain, shaded)
     assert cluttered > 0.7, cluttered
+    # recognition keeps the plain share (LocateOptions.lines_across off): the line counts there
+    told = unexplained_edges(prepare_image(_picture(top, shadow)), model, T_cam_obj, K, np.zeros(5), lines_across=False)
+    assert told > 0.7, told
+
