@@ -13,6 +13,7 @@ from app.geometry.model_edges import prepare_model
 from app.geometry.transforms import inv, pose_from_xyz_euler
 from app.synth.scene import Scene, SceneObject, look_at_pose, place_on_table, render_scene
 from app.synth.table import box_table_layout, box_table_mesh
+import app.vision.object_pose.locate as locate_module
 from app.vision.localize import marker_labels_table
 from app.vision.object_pose.search import centre_extent
 from app.vision.object_pose import (ObjectFailure, ObjectPose, draw_object, locate_object, mask_known_edges,
@@ -67,13 +68,18 @@ def block_scene(models):
     return scene, r, T
 
 
-def test_locates_the_clamped_bracket(models, clamped, monkeypatch):
-    scene, r, T_br, _ = clamped
-    import app.vision.object_pose.locate as locate_module
-    asked = []      # a part asked for by name: a line across it (a cast shadow) is set aside
+def _lines_across_asked(monkeypatch) -> list:
+    """The ``lines_across`` of every unexplained-edge share the engine asks for from now on."""
+    asked: list = []
     real = locate_module.unexplained_edges
     monkeypatch.setattr(locate_module, "unexplained_edges",
                         lambda *a, **kw: asked.append(kw.get("lines_across")) or real(*a, **kw))
+    return asked
+
+
+def test_locates_the_clamped_bracket(models, clamped, monkeypatch):
+    scene, r, T_br, _ = clamped
+    asked = _lines_across_asked(monkeypatch)   # a part asked for by name: a shadow line across it is set aside
     res = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma)
     assert isinstance(res, ObjectPose), getattr(res, "reason", "")
     assert asked and set(asked) == {True}, asked
@@ -194,11 +200,7 @@ def test_recognition_accepts_the_part_and_refuses_absent_ones(models, clamped, m
     told = []
     # recognition never sets a line across a part aside (LocateOptions.lines_across): among many
     # models it let wrong parts in on the devset
-    import app.vision.object_pose.locate as locate_module
-    asked = []
-    real = locate_module.unexplained_edges
-    monkeypatch.setattr(locate_module, "unexplained_edges",
-                        lambda *a, **kw: asked.append(kw.get("lines_across")) or real(*a, **kw))
+    asked = _lines_across_asked(monkeypatch)
     rec = recognise(r.image, K, DIST, scene.T_cam_table, cands, gamma=scene.gamma, known_regions=labels,
                     on_progress=told.append)
     assert rec and rec.best.model_name == "bracket_140"
