@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from app.geometry.feature_edges import boundary_edges, feature_edges
 from app.geometry.mesh import resting_poses
+from app.geometry.raster_kernels import raster_min_depth, span_pixel_count
 from app.geometry.transforms import inv, make_pose, transform_points
 
 __all__ = [
@@ -271,7 +272,7 @@ def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
         raise ValueError(f"z-buffer size must be positive, got {width} x {height}")
     depth = np.full(height * width, np.inf, dtype=np.float64)
     face_id = np.full(height * width, -1, dtype=np.int64)
-    all_pix, all_z, all_id = [], [], []
+    faces = []
     budget = max_pixel_tests
     for mi, (V, F) in enumerate(meshes_cam):
         V = np.asarray(V, dtype=float)
@@ -288,7 +289,7 @@ def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
         zt = tri[:, :, 2]
         u = K[0, 0] * tri[:, :, 0] / zt + K[0, 2]
         v = K[1, 1] * tri[:, :, 1] / zt + K[1, 2]
-        # scanline rasterisation: one (face, row) pair per covered pixel row, then the row's span
+        # scanline rasterisation: each face's pixel rows, then each row's span
         y0 = np.clip(np.ceil(v.min(1)), 0, height).astype(np.int64)
         y1 = np.clip(np.floor(v.max(1)), -1, height - 1).astype(np.int64)
         nrow = np.maximum(y1 - y0 + 1, 0)
@@ -298,52 +299,25 @@ def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
         good = (np.abs(den) > 1e-9) & (nrow > 0)
         if not np.any(good):
             continue
-        fidx, u, v, zt, y0, nrow = fidx[good], u[good], v[good], zt[good], y0[good], nrow[good]
+        fidx, zt, y0, nrow = fidx[good], np.ascontiguousarray(zt[good]), y0[good], nrow[good]
         ua, ub, uc, va, vb, vc, den = ua[good], ub[good], uc[good], va[good], vb[good], vc[good], den[good]
-        # barycentrics l_k = A_k x + B_k y + C_k
+        # barycentrics l_k = A_k x + B_k y + C_k (l_2 = 1 - l_0 - l_1)
         A0, B0 = (vb - vc) / den, (uc - ub) / den
         C0 = -A0 * uc - B0 * vc
         A1, B1 = (vc - va) / den, (ua - uc) / den
         C1 = -A1 * uc - B1 * vc
-        A = np.stack([A0, A1, -A0 - A1], 1)
-        B = np.stack([B0, B1, -B0 - B1], 1)
-        C = np.stack([C0, C1, 1.0 - C0 - C1], 1)
         nr = int(nrow.sum())
         if nr > budget:
             raise ValueError(f"z-buffer needs {nr} rows, more than {budget}; render smaller")
-        rf = np.repeat(np.arange(len(nrow)), nrow)
-        py_r = y0[rf] + (np.arange(nr) - (np.cumsum(nrow) - nrow)[rf])
-        rhs = -(B[rf] * py_r[:, None] + C[rf])           # A x >= rhs for every k
-        Ar = A[rf]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            bound = rhs / Ar
-        lo = np.max(np.where(Ar > 1e-12, bound, np.where(np.abs(Ar) <= 1e-12, np.where(rhs <= 1e-12, -np.inf, np.inf), -np.inf)), axis=1)
-        hi = np.min(np.where(Ar < -1e-12, bound, np.inf), axis=1)
-        x0 = np.clip(np.ceil(lo - 1e-9), 0, width).astype(np.int64)
-        x1 = np.clip(np.floor(hi + 1e-9), -1, width - 1).astype(np.int64)
-        cnt = np.maximum(x1 - x0 + 1, 0)
-        total = int(cnt.sum())
+        total = int(span_pixel_count(A0, B0, C0, A1, B1, C1, y0, nrow, width))
         if total > budget:
             raise ValueError(f"z-buffer needs {total} pixel tests, more than {budget}; render smaller")
         budget -= total
-        rep_r = np.repeat(np.arange(nr), cnt)
-        px = x0[rep_r] + (np.arange(total) - (np.cumsum(cnt) - cnt)[rep_r])
-        py = py_r[rep_r]
-        rep = rf[rep_r]
-        l0 = A0[rep] * px + B0[rep] * py + C0[rep]
-        l1 = A1[rep] * px + B1[rep] * py + C1[rep]
-        l2 = 1.0 - l0 - l1
-        invz = l0 / zt[rep, 0] + l1 / zt[rep, 1] + l2 / zt[rep, 2]   # perspective-correct depth
-        all_pix.append(py * width + px)
-        all_z.append(1.0 / invz)
-        all_id.append((np.int64(mi) << 32) + fidx[rep])
-    if all_pix:
-        pix = np.concatenate(all_pix)
-        z = np.concatenate(all_z)
-        ids = np.concatenate(all_id)
-        np.minimum.at(depth, pix, z)
-        win = z <= depth[pix]
-        face_id[pix[win]] = ids[win]
+        faces.append((np.int64(mi) << 32, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow))
+    # every mesh's budget checked before the buffer is drawn, in the meshes' order
+    for tag, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow in faces:
+        raster_min_depth(depth, face_id, tag, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow, width)
+    face_id[np.isnan(depth)] = -1
     return depth.reshape(height, width).astype(np.float32), face_id.reshape(height, width)
 
 
