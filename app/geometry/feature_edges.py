@@ -294,7 +294,8 @@ def _patches(mesh, Nf, cut_faces: np.ndarray, min_area_mm2: float, min_width_mm:
     small = (area < min_area_mm2) | (width < min_width_mm)
     if len(area) and np.all(small):           # nothing big enough: keep the biggest region
         small[np.argmax(area)] = False
-    lab = np.where(good & ~small[np.maximum(lab, 0)], lab, -1)
+    if len(area):                             # else every face lies in the cut (a ball): all go on below
+        lab = np.where(good & ~small[np.maximum(lab, 0)], lab, -1)
     # hand the rest out ring by ring to the neighbour whose patch normal is closest; a face takes a
     # patch only within 60 deg of the normal where that patch's spread started, so a patch never
     # floods over a crease into a region that was cut away (a fillet inside the crease zone)

@@ -220,3 +220,14 @@ def test_scan_creases_are_the_parts_creases():
     # the dihedral rule on the same scan: most of its "creases" are noise
     old = scan.vertices[np.array(sorted(_dihedral_creases(scan)))]
     assert np.mean(cKDTree(truth).query(_crease_points(old))[0] > 1.0) > 0.5
+
+
+@pytest.mark.parametrize("subdivisions", [2, 4])
+def test_a_ball_has_no_creases_and_prepares(subdivisions):
+    # every face of a coarse sphere turns by more than a scan's noise, so the noisy branch cuts them
+    # all into its crease zone: no patch was left, and the patch labelling failed on the empty set
+    ball = trimesh.creation.icosphere(subdivisions, 20.0)
+    fe = feature_edges(ball)
+    assert fe.edge_feature.sum() == 0
+    model = prepare_model(ball, "ball")
+    assert model.edge_feature.sum() == 0 and model.continuous_axis_obj is not None
