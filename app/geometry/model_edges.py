@@ -445,6 +445,24 @@ def _one_of(S: np.ndarray, found: list[Symmetry], atol: float) -> bool:
     return bool(np.any(np.all(np.abs(S - stack) <= atol + 1e-5 * np.abs(stack), axis=(1, 2))))
 
 
+def _share_within(tree: cKDTree, pts: np.ndarray, tol: float, need: float, chunk: int = 256) -> float:
+    """Share of ``pts`` within ``tol`` (mm) of the tree's points, taken a chunk at a time: as soon as
+    the share can no longer reach ``need``, that bound (below ``need``) is returned instead; a share
+    that reaches it is exact (``np.mean(d <= tol)`` over all points, the same number)."""
+    n = len(pts)
+    if n == 0:
+        d, _ = tree.query(pts, distance_upper_bound=4 * tol)
+        return float(np.mean(d <= tol))
+    hits = 0
+    for i in range(0, n, chunk):
+        d, _ = tree.query(pts[i:i + chunk], distance_upper_bound=4 * tol)
+        hits += int(np.count_nonzero(d <= tol))
+        best = hits + max(n - i - chunk, 0)
+        if best < need * n:
+            return best / n
+    return hits / n
+
+
 def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = None,
                       center: np.ndarray | None = None, tol_mm: float | None = None,
                       near_fraction: float = 0.85, orders: tuple[int, ...] = (2, 3, 4, 5, 6, 8),
@@ -499,26 +517,25 @@ def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = 
         if not any(abs(float(a @ b)) > 0.9995 for b in uniq):
             uniq.append(a)
 
-    def frac(S):
-        """min(share of surface samples, share of edge samples) mapped onto the part by S."""
-        d, _ = tree.query(transform_points(S, query), distance_upper_bound=4 * tol)
-        f = float(np.mean(d <= tol))
-        if tree_e is not None:
-            de, _ = tree_e.query(transform_points(S, query_e), distance_upper_bound=4 * tol)
-            f = min(f, float(np.mean(de <= tol)))
+    def frac(S, need: float):
+        """min(share of surface samples, share of edge samples) mapped onto the part by S; once it
+        cannot reach ``need``, some value below ``need`` (most rotations tried fail within a tenth
+        of the samples)."""
+        f = _share_within(tree, transform_points(S, query), tol, need)
+        if tree_e is not None and f >= need:
+            f = min(f, _share_within(tree_e, transform_points(S, query_e), tol, need))
         return f
 
     out: list[Symmetry] = []
     continuous = None
     for a in uniq:
-        f7 = frac(_rotation_about(a, 2 * np.pi / 7, c))
-        f37 = frac(_rotation_about(a, np.radians(37.0), c))
-        if min(f7, f37) >= 0.995:
+        if (frac(_rotation_about(a, 2 * np.pi / 7, c), 0.995) >= 0.995
+                and frac(_rotation_about(a, np.radians(37.0), c), 0.995) >= 0.995):
             continuous = a
             continue
         best_n = None
         for n in sorted(orders, reverse=True):
-            f = frac(_rotation_about(a, 2 * np.pi / n, c))
+            f = frac(_rotation_about(a, 2 * np.pi / n, c), near_fraction)
             if f >= near_fraction:
                 best_n = n
                 break
@@ -526,7 +543,7 @@ def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = 
             continue
         for k in range(1, best_n):
             S = _rotation_about(a, 2 * np.pi * k / best_n, c)
-            f = frac(S)
+            f = frac(S, near_fraction)
             if f < near_fraction:
                 continue
             if _one_of(S, out, atol=1e-6 * max(1.0, diag)):
@@ -546,7 +563,7 @@ def detect_symmetries(mesh: trimesh.Trimesh, *, axes: list[np.ndarray] | None = 
                     continue
                 rv = Rotation.from_matrix(S[:3, :3]).as_rotvec()
                 ang = float(np.linalg.norm(rv))
-                f = frac(S)
+                f = frac(S, near_fraction)
                 if f < near_fraction:
                     continue
                 out.append(Symmetry(S=S, axis_obj=rv / ang, angle_deg=float(np.degrees(ang)),

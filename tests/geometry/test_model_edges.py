@@ -151,3 +151,23 @@ def test_a_symmetry_already_found_is_told_as_np_allclose_tells_it():
         told.append(_one_of(S, found, atol))
         assert told[-1] == any(np.allclose(S, s.S, atol=atol) for s in found)
     assert 50 < sum(told) < 350                  # both answers asked for
+
+
+def test_share_within_is_exact_when_it_reaches_the_need_and_below_it_when_not():
+    from scipy.spatial import cKDTree
+
+    from app.geometry.model_edges import _share_within
+
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(0, 100, (5000, 3))
+    tree = cKDTree(ref)
+    for shift in (0.0, 0.3, 1.0, 3.0):
+        pts = ref[:1700] + rng.normal(0, shift, (1700, 3))
+        d, _ = tree.query(pts, distance_upper_bound=2.0)
+        exact = float(np.mean(d <= 0.5))
+        for need in (0.0, 0.5, 0.85, 0.995):
+            got = _share_within(tree, pts, 0.5, need)
+            if exact >= need:
+                assert got == exact
+            else:
+                assert exact <= got < need
