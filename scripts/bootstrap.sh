@@ -34,3 +34,6 @@ if [ ! -f "$stamp" ]; then
   .venv/bin/pip install -q -e ".$extras"
   touch "$stamp"
 fi
+# the engine's numba loops compiled into numba's cache beside the sources (about 3 s, once), so that
+# neither the first job of a service nor the test suite's first processes compile them
+.venv/bin/python -c "from app.vision.compiled_kernels import warm_up; warm_up()"

@@ -34,6 +34,7 @@ from app.services.errors import NotFound
 from app.store.db import session_scope
 from app.store.files import FileStore
 from app.store.models import Job, utcnow
+from app.vision.compiled_kernels import warm_up
 
 log = logging.getLogger(__name__)
 
@@ -173,6 +174,11 @@ def execute(ctx: JobContext, kinds: dict[str, JobKind], job_id: int, worker: str
             stale_s: float | None = None) -> str | None:
     """Run job ``job_id`` here if it can be claimed (queued, or running with a heartbeat older than
     ``stale_s``, default ``job_stall_s``); the status it ended with (None: not claimed)."""
+    # the engine's compiled loops first, before any job of this process is claimed: compiling or
+    # loading them holds Python's lock, and a claimed job's heartbeats would wait meanwhile
+    took = warm_up()
+    if took:
+        log.info("compiled loops ready", extra={"seconds": round(took, 2)})
     job = claim(ctx.engine, job_id, worker or worker_name(), stale_s or ctx.settings.job_stall_s)
     if job is None:
         return None
