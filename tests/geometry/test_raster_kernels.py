@@ -166,3 +166,16 @@ def test_a_buffer_too_large_fails_as_before():
         with pytest.raises(ValueError) as old:
             numpy_render_depth([(V, plate.faces)], K, W, H, max_pixel_tests=budget)
         assert str(new.value) == str(old.value)
+
+
+@pytest.mark.parametrize("bad", [np.inf, -np.inf, np.nan, 1e300])
+def test_vertices_that_are_not_finite_give_numpys_buffer(bad):
+    # the compiled loops index the buffer unchecked: every face such a vertex spoils must be dropped
+    # or clipped before them, as numpy dropped or clipped it
+    box = trimesh.creation.box(extents=(50, 50, 50))
+    V0 = transform_points(pose_from_xyz_euler(0, 0, 400, 170, 5, 0), box.vertices)
+    for vertex, axis in ((0, 0), (0, 2), (3, 1)):
+        V = V0.copy()
+        V[vertex, axis] = bad
+        with np.errstate(all="ignore"):
+            _same(render_depth([(V, box.faces)], K, W, H), numpy_render_depth([(V, box.faces)], K, W, H))
