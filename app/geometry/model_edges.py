@@ -272,7 +272,7 @@ def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
         raise ValueError(f"z-buffer size must be positive, got {width} x {height}")
     depth = np.full(height * width, np.inf, dtype=np.float64)
     face_id = np.full(height * width, -1, dtype=np.int64)
-    faces = []
+    to_draw = []
     budget = max_pixel_tests
     for mi, (V, F) in enumerate(meshes_cam):
         V = np.asarray(V, dtype=float)
@@ -313,9 +313,9 @@ def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
         if total > budget:
             raise ValueError(f"z-buffer needs {total} pixel tests, more than {budget}; render smaller")
         budget -= total
-        faces.append((np.int64(mi) << 32, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow))
+        to_draw.append((np.int64(mi) << 32, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow))
     # every mesh's budget checked before the buffer is drawn, in the meshes' order
-    for tag, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow in faces:
+    for tag, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow in to_draw:
         raster_min_depth(depth, face_id, tag, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow, width)
     face_id[np.isnan(depth)] = -1
     return depth.reshape(height, width).astype(np.float32), face_id.reshape(height, width)

@@ -13,7 +13,6 @@ at integers), camera z of its three vertices in mm.
 
 from __future__ import annotations
 
-
 import numpy as np
 from numba import njit
 
