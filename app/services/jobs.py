@@ -176,9 +176,12 @@ def execute(ctx: JobContext, kinds: dict[str, JobKind], job_id: int, worker: str
     ``stale_s``, default ``job_stall_s``); the status it ended with (None: not claimed)."""
     # the engine's compiled loops first, before any job of this process is claimed: compiling or
     # loading them holds Python's lock, and a claimed job's heartbeats would wait meanwhile
-    took = warm_up()
-    if took:
-        log.info("compiled loops ready", extra={"seconds": round(took, 2)})
+    try:
+        took = warm_up()
+        if took:
+            log.info("compiled loops ready", extra={"seconds": round(took, 2)})
+    except Exception:  # noqa: BLE001 - the jobs that need the loops then make them (or fail) themselves
+        log.exception("making the compiled loops ready failed")
     job = claim(ctx.engine, job_id, worker or worker_name(), stale_s or ctx.settings.job_stall_s)
     if job is None:
         return None

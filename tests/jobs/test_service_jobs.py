@@ -121,6 +121,21 @@ def test_a_job_that_times_out_before_its_setup_starts_leaves_the_setup_failed(tm
         assert setup["status"] == "failed" and setup["reason"] == job["reason"] and setup["stages"] == [], setup
 
 
+def test_a_warm_up_that_fails_holds_up_no_job(tmp_path, monkeypatch):
+    # the compiled loops made ready before a claim (app.vision.compiled_kernels): should that fail, the
+    # job runs anyway and whatever needs the loops makes them itself
+    from app.services import jobs
+
+    def broken() -> float:
+        raise RuntimeError("no compiler here")
+
+    monkeypatch.setattr(jobs, "warm_up", broken)
+    with live_server(tmp_path / "data") as srv, srv.client() as c:
+        accepted = start_alignment(c)
+        job = wait_for(c, accepted["job_url"], lambda j: j["status"] in ("done", "failed"), 120)
+        assert job["status"] == "done" and job["attempts"] == 1, job
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("backend", ["sqlite", pytest.param("postgres", marks=pytest.mark.postgres)])
 def test_service_killed_with_jobs_running_and_queued_finishes_them_after_restart(tmp_path, backend):
