@@ -110,7 +110,6 @@ def numpy_render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.nd
     return depth.reshape(height, width).astype(np.float32), face_id.reshape(height, width)
 
 
-
 K = np.array([[900.0, 0, 181.3], [0, 900.0, 120.7], [0, 0, 1]])
 W, H = 360, 240
 
