@@ -32,8 +32,9 @@ stamp=".venv/.installed-$mode-$(sha256sum pyproject.toml | cut -c1-16)"
 if [ ! -f "$stamp" ]; then
   .venv/bin/pip install -q --upgrade pip
   .venv/bin/pip install -q -e ".$extras"
+  # the engine's numba loops compiled into numba's cache beside the sources (about 3 s), so that
+  # neither the first job of a service nor the test suite's first processes compile them; later
+  # starts find them there (a job runner makes them ready itself before its first claim)
+  .venv/bin/python -c "from app.vision.compiled_kernels import warm_up; warm_up()"
   touch "$stamp"
 fi
-# the engine's numba loops compiled into numba's cache beside the sources (about 3 s, once), so that
-# neither the first job of a service nor the test suite's first processes compile them
-.venv/bin/python -c "from app.vision.compiled_kernels import warm_up; warm_up()"

@@ -35,6 +35,7 @@ __all__ = [
     "EdgeSamples",
     "prepare_model",
     "project_points_px",
+    "face_planes",
     "render_depth",
     "visible_edge_samples",
     "resting_pose",
@@ -252,6 +253,45 @@ def project_points_px(P_cam: np.ndarray, K: np.ndarray, dist=None) -> np.ndarray
     return uv
 
 
+def face_planes(V, F, K: np.ndarray, width: int, height: int, cull_back_faces: bool = True):
+    """What :func:`render_depth` draws of one mesh (vertices ``V`` mm in the camera frame, faces ``F``):
+    the faces in front of the camera (and turned towards it, with ``cull_back_faces``) that cover a
+    pixel row of the buffer, as (face indices, barycentric planes ``l_k = A_k x + B_k y + C_k`` of
+    buffer pixels for k = 0, 1 (``l_2 = 1 - l_0 - l_1``), the vertices' camera z (n, 3), first pixel
+    row, number of rows); None where no face is left."""
+    V = np.asarray(V, dtype=float)
+    F = np.asarray(F, dtype=np.int64)
+    tri = V[F]                                   # (F, 3, 3)
+    ok = np.all(tri[:, :, 2] > 1.0, axis=1)      # drop faces behind/at the camera (no clipping)
+    if cull_back_faces:   # closed meshes: a face turned away is never the nearest surface
+        nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        ok &= np.einsum("ij,ij->i", nrm, tri[:, 0]) < 0
+    fidx = np.nonzero(ok)[0]
+    tri = tri[ok]
+    if len(tri) == 0:
+        return None
+    zt = tri[:, :, 2]
+    u = K[0, 0] * tri[:, :, 0] / zt + K[0, 2]
+    v = K[1, 1] * tri[:, :, 1] / zt + K[1, 2]
+    # scanline rasterisation: each face's pixel rows, then each row's span
+    y0 = np.clip(np.ceil(v.min(1)), 0, height).astype(np.int64)
+    y1 = np.clip(np.floor(v.max(1)), -1, height - 1).astype(np.int64)
+    nrow = np.maximum(y1 - y0 + 1, 0)
+    ua, ub, uc = u[:, 0], u[:, 1], u[:, 2]
+    va, vb, vc = v[:, 0], v[:, 1], v[:, 2]
+    den = (vb - vc) * (ua - uc) + (uc - ub) * (va - vc)
+    good = (np.abs(den) > 1e-9) & (nrow > 0)
+    if not np.any(good):
+        return None
+    fidx, zt, y0, nrow = fidx[good], np.ascontiguousarray(zt[good]), y0[good], nrow[good]
+    ua, ub, uc, va, vb, vc, den = ua[good], ub[good], uc[good], va[good], vb[good], vc[good], den[good]
+    A0, B0 = (vb - vc) / den, (uc - ub) / den
+    C0 = -A0 * uc - B0 * vc
+    A1, B1 = (vc - va) / den, (ua - uc) / den
+    C1 = -A1 * uc - B1 * vc
+    return fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow
+
+
 def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, width: int,
                  height: int, max_pixel_tests: int = 6_000_000, cull_back_faces: bool = True
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -275,37 +315,10 @@ def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
     to_draw = []
     budget = max_pixel_tests
     for mi, (V, F) in enumerate(meshes_cam):
-        V = np.asarray(V, dtype=float)
-        F = np.asarray(F, dtype=np.int64)
-        tri = V[F]                                   # (F, 3, 3)
-        ok = np.all(tri[:, :, 2] > 1.0, axis=1)      # drop faces behind/at the camera (no clipping)
-        if cull_back_faces:   # closed meshes: a face turned away is never the nearest surface
-            nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-            ok &= np.einsum("ij,ij->i", nrm, tri[:, 0]) < 0
-        fidx = np.nonzero(ok)[0]
-        tri = tri[ok]
-        if len(tri) == 0:
+        planes = face_planes(V, F, K, width, height, cull_back_faces)
+        if planes is None:
             continue
-        zt = tri[:, :, 2]
-        u = K[0, 0] * tri[:, :, 0] / zt + K[0, 2]
-        v = K[1, 1] * tri[:, :, 1] / zt + K[1, 2]
-        # scanline rasterisation: each face's pixel rows, then each row's span
-        y0 = np.clip(np.ceil(v.min(1)), 0, height).astype(np.int64)
-        y1 = np.clip(np.floor(v.max(1)), -1, height - 1).astype(np.int64)
-        nrow = np.maximum(y1 - y0 + 1, 0)
-        ua, ub, uc = u[:, 0], u[:, 1], u[:, 2]
-        va, vb, vc = v[:, 0], v[:, 1], v[:, 2]
-        den = (vb - vc) * (ua - uc) + (uc - ub) * (va - vc)
-        good = (np.abs(den) > 1e-9) & (nrow > 0)
-        if not np.any(good):
-            continue
-        fidx, zt, y0, nrow = fidx[good], np.ascontiguousarray(zt[good]), y0[good], nrow[good]
-        ua, ub, uc, va, vb, vc, den = ua[good], ub[good], uc[good], va[good], vb[good], vc[good], den[good]
-        # barycentrics l_k = A_k x + B_k y + C_k (l_2 = 1 - l_0 - l_1)
-        A0, B0 = (vb - vc) / den, (uc - ub) / den
-        C0 = -A0 * uc - B0 * vc
-        A1, B1 = (vc - va) / den, (ua - uc) / den
-        C1 = -A1 * uc - B1 * vc
+        fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow = planes
         nr = int(nrow.sum())
         if nr > budget:
             raise ValueError(f"z-buffer needs {nr} rows, more than {budget}; render smaller")
@@ -313,7 +326,7 @@ def render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
         if total > budget:
             raise ValueError(f"z-buffer needs {total} pixel tests, more than {budget}; render smaller")
         budget -= total
-        to_draw.append((np.int64(mi) << 32, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow))
+        to_draw.append((np.int64(mi) << 32, *planes))
     # every mesh's budget checked before the buffer is drawn, in the meshes' order
     for tag, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow in to_draw:
         raster_min_depth(depth, face_id, tag, fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow, width)

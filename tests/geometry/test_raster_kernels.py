@@ -1,5 +1,5 @@
 """The z-buffer's compiled loops (app.geometry.raster_kernels, through model_edges.render_depth)
-against the numpy rasteriser they replace (kept below as it was): depth and face ids the same bit
+against the numpy rasteriser they replace (its pixel loops kept below as they were): depth and face ids the same bit
 for bit on real parts from many views, several meshes in one buffer (ties between coplanar faces
 included), faces behind the camera and off the buffer, and the same budget errors."""
 
@@ -10,26 +10,14 @@ import pytest
 import trimesh
 
 from app.geometry import parts
-from app.geometry.model_edges import render_depth
+from app.geometry.model_edges import face_planes, render_depth
 from app.geometry.transforms import pose_from_xyz_euler, transform_points
 
 
-def numpy_render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, width: int,
-                 height: int, max_pixel_tests: int = 6_000_000, cull_back_faces: bool = True
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Z-buffer of triangle meshes seen by a pinhole camera (no distortion).
-
-    Parameters
-    ----------
-    meshes_cam : list of (vertices (V, 3) mm in the camera frame, faces (F, 3) int)
-    K : (3, 3) intrinsics of the (possibly scaled) buffer; pixel centres at integer coordinates
-    width, height : buffer size in px
-
-    Returns
-    -------
-    depth : (height, width) float32, camera z in mm of the nearest surface, +inf where empty
-    face_id : (height, width) int64, ``mesh_index * 2**32 + face_index`` of that surface, -1 where empty
-    """
+def numpy_render_depth(meshes_cam, K, width, height, max_pixel_tests=6_000_000, cull_back_faces=True):
+    """render_depth as numpy drew it before the loops were compiled: each mesh's faces as
+    :func:`face_planes` gives them, then every (face, row) pair and every (face, pixel) pair expanded
+    into arrays and the nearest surface taken by a scattered minimum."""
     if width <= 0 or height <= 0:
         raise ValueError(f"z-buffer size must be positive, got {width} x {height}")
     depth = np.full(height * width, np.inf, dtype=np.float64)
@@ -37,37 +25,10 @@ def numpy_render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.nd
     all_pix, all_z, all_id = [], [], []
     budget = max_pixel_tests
     for mi, (V, F) in enumerate(meshes_cam):
-        V = np.asarray(V, dtype=float)
-        F = np.asarray(F, dtype=np.int64)
-        tri = V[F]                                   # (F, 3, 3)
-        ok = np.all(tri[:, :, 2] > 1.0, axis=1)      # drop faces behind/at the camera (no clipping)
-        if cull_back_faces:   # closed meshes: a face turned away is never the nearest surface
-            nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-            ok &= np.einsum("ij,ij->i", nrm, tri[:, 0]) < 0
-        fidx = np.nonzero(ok)[0]
-        tri = tri[ok]
-        if len(tri) == 0:
+        planes = face_planes(V, F, K, width, height, cull_back_faces)
+        if planes is None:
             continue
-        zt = tri[:, :, 2]
-        u = K[0, 0] * tri[:, :, 0] / zt + K[0, 2]
-        v = K[1, 1] * tri[:, :, 1] / zt + K[1, 2]
-        # scanline rasterisation: one (face, row) pair per covered pixel row, then the row's span
-        y0 = np.clip(np.ceil(v.min(1)), 0, height).astype(np.int64)
-        y1 = np.clip(np.floor(v.max(1)), -1, height - 1).astype(np.int64)
-        nrow = np.maximum(y1 - y0 + 1, 0)
-        ua, ub, uc = u[:, 0], u[:, 1], u[:, 2]
-        va, vb, vc = v[:, 0], v[:, 1], v[:, 2]
-        den = (vb - vc) * (ua - uc) + (uc - ub) * (va - vc)
-        good = (np.abs(den) > 1e-9) & (nrow > 0)
-        if not np.any(good):
-            continue
-        fidx, u, v, zt, y0, nrow = fidx[good], u[good], v[good], zt[good], y0[good], nrow[good]
-        ua, ub, uc, va, vb, vc, den = ua[good], ub[good], uc[good], va[good], vb[good], vc[good], den[good]
-        # barycentrics l_k = A_k x + B_k y + C_k
-        A0, B0 = (vb - vc) / den, (uc - ub) / den
-        C0 = -A0 * uc - B0 * vc
-        A1, B1 = (vc - va) / den, (ua - uc) / den
-        C1 = -A1 * uc - B1 * vc
+        fidx, A0, B0, C0, A1, B1, C1, zt, y0, nrow = planes
         A = np.stack([A0, A1, -A0 - A1], 1)
         B = np.stack([B0, B1, -B0 - B1], 1)
         C = np.stack([C0, C1, 1.0 - C0 - C1], 1)
@@ -80,7 +41,8 @@ def numpy_render_depth(meshes_cam: list[tuple[np.ndarray, np.ndarray]], K: np.nd
         Ar = A[rf]
         with np.errstate(divide="ignore", invalid="ignore"):
             bound = rhs / Ar
-        lo = np.max(np.where(Ar > 1e-12, bound, np.where(np.abs(Ar) <= 1e-12, np.where(rhs <= 1e-12, -np.inf, np.inf), -np.inf)), axis=1)
+        lo = np.max(np.where(Ar > 1e-12, bound,
+                             np.where(np.abs(Ar) <= 1e-12, np.where(rhs <= 1e-12, -np.inf, np.inf), -np.inf)), axis=1)
         hi = np.min(np.where(Ar < -1e-12, bound, np.inf), axis=1)
         x0 = np.clip(np.ceil(lo - 1e-9), 0, width).astype(np.int64)
         x1 = np.clip(np.floor(hi + 1e-9), -1, width - 1).astype(np.int64)

@@ -112,4 +112,3 @@ def test_a_shadow_across_the_part_leaves_nothing_unexplained_but_clutter_does(pl
     # recognition keeps the plain share (LocateOptions.lines_across off): the line counts there
     told = unexplained_edges(prepare_image(_picture(top, shadow)), model, T_cam_obj, K, np.zeros(5), lines_across=False)
     assert told > 0.7, told
-
