@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.vision.encoding_gamma import BIAS_LIMIT_PX, read_encoding_gamma
+from app.vision.encoding_gamma import BIAS_LIMIT_PX, GAMMA_RANGE, _nearest_zero, read_encoding_gamma
 from app.vision.fiducials import detect_markers, locate_table
 
 DICT = "DICT_5X5_100"
@@ -103,3 +103,38 @@ def test_devset_image_as_rendered_and_without_gamma():
     assert off(got) < max(1.5 * off(as_rendered), 0.1), (off(got), off(as_rendered))
     blind = locate_table(linear, K, dist, layout, read_gamma=False)
     assert not blind and "disagree" in blind.reason, blind
+
+
+def _sweep(bias, assumed: float):
+    """The whole grid read, as the reading did before it was read outward (the reference)."""
+    gs = np.round(np.arange(GAMMA_RANGE[0] - 0.2, GAMMA_RANGE[1] + 0.2 + 1e-9, 0.1), 2)
+    bs = np.array([bias(float(g)) for g in gs], dtype=float)
+    fin = np.isfinite(bs)
+    cross = np.nonzero(fin[:-1] & fin[1:] & (np.sign(bs[:-1]) * np.sign(bs[1:]) <= 0))[0]
+    if not len(cross):
+        return None
+    i = cross[np.argmin(np.abs(gs[cross] - assumed))]
+    return round(float(gs[i] + (gs[i + 1] - gs[i]) * bs[i] / (bs[i] - bs[i + 1] + 1e-12)), 2)
+
+
+def test_the_sign_change_read_outward_is_the_one_the_whole_grid_gives():
+    """Read from the assumed gamma outward, and only as far as a nearer change of sign could lie:
+    the same estimate as the whole grid, for one zero, several, none, ties and unreadable points,
+    in fewer readings where the zero lies near the assumed gamma."""
+    rng = np.random.default_rng(3)
+    cases = [lambda g: 0.3 * (g - 2.34), lambda g: -(g - 1.05), lambda g: 0.2, lambda g: None,
+             lambda g: np.sin(4.0 * g), lambda g: (g - 2.05) * (g - 2.35),          # zeros both sides, a tie
+             lambda g: None if 1.9 < g < 2.5 else g - 2.2, lambda g: (g - 2.15) * (g - 2.35)]
+    for k in range(40):                                      # random wiggles with gaps
+        c = rng.normal(0, 1, 4)
+        gaps = rng.random(27) < 0.15
+        cases.append(lambda g, c=c, gaps=gaps: None if gaps[int(round((g - 0.6) / 0.1))] else
+                     float(np.polyval(c, g - 2.0)))
+    for bias in cases:
+        for assumed in (2.2, 1.0, 1.8, 2.23, 1.37, 2.96):
+            calls = []
+            got = _nearest_zero(lambda g: calls.append(g) or bias(g), assumed)
+            assert got == _sweep(bias, assumed)
+    calls = []
+    assert _nearest_zero(lambda g: calls.append(g) or 0.3 * (g - 2.26), 2.2) == 2.26
+    assert len(calls) <= 5
