@@ -13,6 +13,12 @@ from app.geometry.model_edges import PreparedModel, project_points_px, visible_e
 from app.geometry.transforms import transform_points
 
 
+#: grey level (0-255, any colour channel) from which a pixel counts as clipped: a face brighter than the
+#: sensor's top reads flat there, and the 50 % crossing of an edge beside it moves toward the dark side
+#: (devset setup_006: 0.37 px on two thirds of a white part's edges, 0.8 mm of its position)
+CLIP_GREY = 250
+
+
 @dataclass(frozen=True, eq=False)
 class EdgeImage:
     """An image prepared once for all candidate models.
@@ -22,6 +28,8 @@ class EdgeImage:
     dist_px : (H, W) float32 distance to the nearest edge pixel
     nearest : (H, W) int32 index into ``edge_uv`` of that pixel
     edge_uv : (E, 2) float edge pixel positions (u, v); ``edge_angle`` (E,) gradient direction, rad
+    clipped : (H, W) bool, pixels at the sensor's top (any channel at :data:`CLIP_GREY` or above),
+        whose true brightness is not known; None: not known (nothing treated as clipped)
     """
 
     width: int
@@ -35,6 +43,7 @@ class EdgeImage:
     edge_mag: np.ndarray
     noise_linear: float
     gamma: float = 2.2                           # the decoding's: edge contrasts are judged at their grey level
+    clipped: np.ndarray | None = None
     cache: dict = field(default_factory=dict)   # per-image intermediate results shared by models
 
 
@@ -46,10 +55,12 @@ def prepare_image(image: np.ndarray, *, gamma: float = 2.2, canny_low: float | N
     from the image (median absolute deviation), with floors of 8 and 20 grey levels.
     """
     img = np.asarray(image)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     if img.dtype != np.uint8:
         raise ValueError(f"image must be 8-bit grey or BGR, got dtype {img.dtype}")
+    # a channel at the top clips the grey made from it too (a red face saturated in red only)
+    clipped = (img.max(axis=2) if img.ndim == 3 else img) >= CLIP_GREY
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     H, W = img.shape
     lin = ((img.astype(np.float32) / 255.0) ** float(gamma)).astype(np.float32)
     sm = cv2.GaussianBlur(img, (0, 0), smooth_sigma_px) if smooth_sigma_px > 0 else img
@@ -67,10 +78,10 @@ def prepare_image(image: np.ndarray, *, gamma: float = 2.2, canny_low: float | N
     gy16 = np.clip(np.round(gy), -32767, 32767).astype(np.int16)
     edges = cv2.Canny(gx16, gy16, lo, hi, L2gradient=True)
     noise_lin = float(noise / 255.0 * gamma * 0.5 ** (gamma - 1))  # slope of the decode at mid-grey
-    return _edge_image(lin, edges, np.arctan2(gy, gx), mag, noise_lin, float(gamma))
+    return _edge_image(lin, edges, np.arctan2(gy, gx), mag, noise_lin, float(gamma), clipped)
 
 
-def _edge_image(lin, edges, angle, mag, noise_lin, gamma) -> EdgeImage:
+def _edge_image(lin, edges, angle, mag, noise_lin, gamma, clipped=None) -> EdgeImage:
     H, W = edges.shape
     dist_px, labels = cv2.distanceTransformWithLabels(
         np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, 5,
@@ -83,7 +94,7 @@ def _edge_image(lin, edges, angle, mag, noise_lin, gamma) -> EdgeImage:
                      nearest=nearest, edge_uv=edge_uv,
                      edge_angle=full_angle[vv, uu] if full_angle is not None else angle,
                      edge_mag=mag[vv, uu] if mag.shape == edges.shape else mag, noise_linear=noise_lin,
-                     gamma=gamma, cache={"angle_full": angle, "mag_full": mag})
+                     gamma=gamma, clipped=clipped, cache={"angle_full": angle, "mag_full": mag})
 
 
 def nearest_edge_maps(eimg: EdgeImage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -128,7 +139,7 @@ def mask_known_edges(eimg: EdgeImage, known: list[tuple[PreparedModel, np.ndarra
         np.maximum(mask, eimg.cache[key][1], out=mask)
     edges = np.where(mask > 0, 0, eimg.edges).astype(np.uint8)
     return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
-                       eimg.noise_linear, eimg.gamma)
+                       eimg.noise_linear, eimg.gamma, eimg.clipped)
 
 
 def mask_table_regions(eimg: EdgeImage, regions_table: list, T_cam_table: np.ndarray, K, dist,
@@ -152,4 +163,4 @@ def mask_table_regions(eimg: EdgeImage, regions_table: list, T_cam_table: np.nda
     mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
     edges = np.where(mask > 0, 0, eimg.edges).astype(np.uint8)
     return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
-                       eimg.noise_linear, eimg.gamma)
+                       eimg.noise_linear, eimg.gamma, eimg.clipped)

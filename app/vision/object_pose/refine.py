@@ -75,6 +75,24 @@ def edges_along_normals(lin: np.ndarray, uv: np.ndarray, normal: np.ndarray, sea
     return off, contrast
 
 
+def near_clipped(clipped: np.ndarray | None, uv: np.ndarray, normal: np.ndarray, off: np.ndarray,
+                 reach_px: float = 3.5) -> np.ndarray:
+    """(N,) bool: a clipped pixel (``clipped``, (H, W) bool) lies on the sample's normal within
+    ``reach_px`` of the image edge found there (``uv + off * normal``, px): the plateau the 50 %
+    crossing is taken against is cut off, and the crossing sits toward the darker side by an
+    amount the image does not tell (a fraction of the blur's width). The reach covers
+    :func:`edges_along_normals`' plateaus (2.5 px, read 0.5 px further out)."""
+    n = len(uv)
+    if clipped is None or n == 0:
+        return np.zeros(n, bool)
+    ts = np.arange(-reach_px, reach_px + 1e-9, 0.5)
+    at = np.nan_to_num(np.asarray(off, float))[:, None] + ts[None, :]
+    P = uv[:, None, :] + at[..., None] * normal[:, None, :]
+    hit = cv2.remap(clipped.view(np.uint8), P[..., 0].astype(np.float32), P[..., 1].astype(np.float32),
+                    cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return hit.any(axis=1)
+
+
 def _clear_of_other_edges(model: PreparedModel, es, radius_px: float, max_turn_deg: float = 20.0) -> np.ndarray:
     """(N,) bool: no other visible edge comes within ``radius_px`` of the sample in the image, apart
     from the continuation of its own line (same direction, on the line). Profiles near corners,
@@ -144,6 +162,12 @@ def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, 
             good = seen & _clear_of_other_edges(model, es, min(r, 2.0) + 1.0)
         if good.sum() < 10:
             return T, {"n_visible": len(es.index), "failed": "too few image edges along the model's edges"}
+        # an edge beside a clipped face is off toward the dark side by an amount the image does not
+        # tell: fitted without those while enough others remain (the support score still counts
+        # them: the edge is there, within a pixel)
+        unclipped = good & ~near_clipped(eimg.clipped, es.uv_px, es.normal_uv, off)
+        if unclipped.sum() >= 10:
+            good = unclipped
         X = es.points_obj[good]
         n = es.normal_uv[good]
         target = es.uv_px[good] + off[good, None] * n

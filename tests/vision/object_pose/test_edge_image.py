@@ -43,3 +43,21 @@ def test_known_edges_masked_with_the_cached_mask_as_without():
         assert np.array_equal(cached.edges, fresh.edges)
         assert np.array_equal(cached.dist_px, fresh.dist_px)
     assert (fresh.edges > 0).sum() < (shared.edges > 0).sum()   # the poses do mask edges
+
+
+def test_clipped_pixels_are_marked_in_any_channel_and_kept_by_the_masked_copies():
+    """A face at the sensor's top in one colour channel only is clipped too (its grey is not 255),
+    and the copies with known edges or regions masked keep the mark."""
+    img = np.full((240, 320, 3), 90, np.uint8)
+    img[50:120, 40:150] = (255, 255, 255)          # white, over the top
+    img[140:200, 180:300] = (120, 130, 255)        # red face (BGR), saturated in red only
+    img[20:40, 200:300] = (200, 200, 200)          # bright, under the top
+    eimg = prepare_image(img)
+    grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    assert eimg.clipped[60, 60] and eimg.clipped[150, 200] and grey[150, 200] < 200
+    assert not eimg.clipped[30, 250] and not eimg.clipped[5, 5]
+    assert eimg.clipped.sum() == 70 * 110 + 60 * 120
+    masked = mask_known_edges(eimg, [(prepare_model(parts.parallel(150.0, 25.0, 8.0), "parallel"),
+                                      make_pose(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 400.0]))], K, DIST)
+    assert masked.clipped is eimg.clipped
+    assert prepare_image(img[..., 0]).clipped.sum() == 70 * 110  # grey input: only the white face

@@ -3,17 +3,19 @@ the part's own must not pull the pose."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
 import trimesh
 
-from app.geometry.model_edges import prepare_model, project_points_px
+from app.geometry.model_edges import prepare_model, project_points_px, visible_edge_samples
 from app.geometry.transforms import pose_from_xyz_euler, transform_points
 from app.synth.scene import look_at_pose
 from app.vision.object_pose.edge_image import prepare_image
 from app.vision.object_pose.pose_params import FREE_6DOF
-from app.vision.object_pose.refine import edges_along_normals, refine_pose
+from app.vision.object_pose.refine import edges_along_normals, near_clipped, refine_pose
 from app.vision.object_pose.uncertainty import cauchy_weights
 
 W, H, SS = 640, 480, 8               # image size (px) and supersampling of the rendering
@@ -23,10 +25,12 @@ T_CAM_TABLE = look_at_pose(np.array([150.0, -450.0, 380.0]), np.array([0.0, 0.0,
 T_TRUE = pose_from_xyz_euler(0.0, 0.0, 0.0, 0.0, 0.0, 12.0)
 
 
-def _render(stripe: bool) -> np.ndarray:
+def _render(stripe: bool, top_shade: float | None = None) -> np.ndarray:
     """8-bit image (gamma 2.2) of the box on a dark table, its faces shaded by their normals,
-    antialiased by 8x supersampling; with ``stripe``, a bright 1 px line runs 1.2 px outside the
-    box's left silhouette along all of it (a clamp's edge, a shadow's)."""
+    antialiased by 8x supersampling, then blurred 0.7 px (the lens) before the sensor clips it; with
+    ``stripe``, a bright 1 px line runs 1.2 px outside the box's left silhouette along all of it (a
+    clamp's edge, a shadow's); ``top_shade``: the top face's linear brightness (over 1: beyond the
+    sensor's top, a polished face catching the lamp)."""
     Ks = K.copy()
     Ks[:2] *= SS
     Ks[:2, 2] += (SS - 1) / 2.0            # pixel centres: u_hi = 8 u + 3.5
@@ -39,6 +43,8 @@ def _render(stripe: bool) -> np.ndarray:
             continue
         uv = project_points_px(P, Ks)
         shade = 0.15 + 0.6 * max(0.0, float(np.dot(T_TRUE[:3, :3] @ n, light)))
+        if top_shade is not None and n[2] > 0.9:
+            shade = top_shade
         cv2.fillConvexPoly(lin, np.round(uv * 16).astype(np.int32), float(shade), lineType=cv2.LINE_8, shift=4)
     if stripe:
         # the silhouette edge on the image's left: the box's x = -40, y = -25 vertical edge
@@ -52,12 +58,16 @@ def _render(stripe: bool) -> np.ndarray:
         cv2.line(lin, tuple(np.round(p0 * 16).astype(int)), tuple(np.round(p1 * 16).astype(int)), 0.9,
                  thickness=SS, lineType=cv2.LINE_8, shift=4)
     small = cv2.resize(lin, (W, H), interpolation=cv2.INTER_AREA)
-    return np.clip(255.0 * small ** (1 / 2.2), 0, 255).astype(np.uint8)
+    if top_shade is not None:
+        small = cv2.GaussianBlur(small, (0, 0), 0.7)
+    return np.clip(255.0 * np.minimum(small, 1.0) ** (1 / 2.2), 0, 255).astype(np.uint8)
 
 
-def _fit(image: np.ndarray, reweight: int) -> np.ndarray:
+def _fit(image: np.ndarray, reweight: int, clip_known: bool = True) -> np.ndarray:
     model = prepare_model(BOX, "box", detect_symmetry=False)
     eimg = prepare_image(image)
+    if not clip_known:
+        eimg = dataclasses.replace(eimg, clipped=None)
     start = pose_from_xyz_euler(0.4, -0.3, 0.2, 0.1, -0.1, 12.3)
     on_table = (T_TRUE, 0.15, np.radians(0.3), np.asarray(BOX.vertices))      # the contact prior
     T, info = refine_pose(eimg, model, start, T_CAM_TABLE, K, np.zeros(5), (), np.arange(len(model.samples_obj)),
@@ -122,3 +132,22 @@ def test_a_dark_edge_is_judged_against_its_own_noise():
     assert _contrast(_step(113, 143), 2.2) > floor
     bright = _step(150, 180)
     assert _contrast(bright, 2.2) == pytest.approx(_contrast(bright, None))
+
+
+def test_edges_beside_a_clipped_face_are_left_out_of_the_fit():
+    """A top face three times over the sensor's top: its edges' 50 % crossings sit toward the dark
+    side (the bright plateau is cut off), and a fit that takes them makes the box look bigger, so
+    nearer. Left out, the side faces' edges place it as if nothing were clipped."""
+    image = _render(stripe=False, top_shade=3.0)
+    assert (image == 255).mean() > 0.01                       # the top face is clipped (2 % of the image)
+    eimg = prepare_image(image)
+    model = prepare_model(BOX, "box", detect_symmetry=False)
+    es = visible_edge_samples(model, T_CAM_TABLE @ T_TRUE, K, np.zeros(5), W, H)
+    off, _ = edges_along_normals(eimg.linear, es.uv_px, es.normal_uv, 2.0, gamma=eimg.gamma)
+    near = near_clipped(eimg.clipped, es.uv_px, es.normal_uv, off)
+    top = transform_points(np.eye(4), es.points_obj)[:, 2] > 29.9
+    assert near[top].mean() > 0.9 and near[~top].mean() < 0.5
+    taken = np.linalg.norm(_fit(image, reweight=3, clip_known=False), axis=1).max()
+    left_out = np.linalg.norm(_fit(image, reweight=3), axis=1).max()
+    assert taken > 0.3
+    assert left_out < 0.1
