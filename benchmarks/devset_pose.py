@@ -87,7 +87,7 @@ def scenes(family: str = "setup") -> list[dict]:
 # on pictures rougher than the devset's; deterministic per scene)
 PERTURB = ""
 PERTURBATIONS = ("jpeg60", "blur", "resample", "linear", "noise", "dark", "blur_noise", "dark_noise", "calib",
-                 "chips", "layout", "calib_dist")
+                 "chips", "layout", "calib_dist", "bright")
 # ``layout``: the markers as a shop places them, told as designed: each one off its layout position by
 # N(0, LAYOUT_MM) per axis in the table plane and turned by N(0, LAYOUT_DEG), its printed size off by
 # N(0, LAYOUT_SCALE) (a printer's scaling); the engine is told the layout, the image shows them as placed
@@ -170,8 +170,9 @@ def perturbed(image, kind: str, seed: int):
     ``linear`` encoded without gamma (``255 * L``: many machine-vision cameras' default), read by an
     engine that assumes the usual 2.2; ``noise`` read noise (sigma 4 grey levels); ``dark`` every grey
     level scaled by 0.45 (under-exposed: fewer grey levels per edge); ``blur_noise`` and ``dark_noise``
-    both; ``calib`` and ``layout`` leave the image as it is (:func:`told_intrinsics` and
-    :func:`told_layout` change what the engine is told);
+    both; ``bright`` one stop over-exposed (linear light doubled, then clipped at the sensor's top:
+    every face brighter than mid-grey reads 255 at its edges); ``calib`` and ``layout`` leave the
+    image as it is (:func:`told_intrinsics` and :func:`told_layout` change what the engine is told);
     ``chips`` strews :data:`CHIPS_N` small polygons of random grey over it (chips and coolant spots)."""
     import cv2
 
@@ -205,6 +206,8 @@ def perturbed(image, kind: str, seed: int):
         img = 255.0 * (img / 255.0) ** GAMMA
     if kind.startswith("dark"):
         img = img * 0.45
+    if kind == "bright":
+        img = 255.0 * np.minimum(2.0 * (img / 255.0) ** GAMMA, 1.0) ** (1.0 / GAMMA)
     if kind.endswith("noise"):
         img = img + np.random.default_rng(seed).normal(0.0, 4.0, img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)

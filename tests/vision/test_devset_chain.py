@@ -157,15 +157,17 @@ def test_part_held_between_the_located_jaws():
 def test_a_part_whose_top_is_over_the_sensors_top_is_fitted_without_the_edges_beside_it(monkeypatch):
     """setup_006: a white part in the vise, lit over the sensor's top (two thirds of its edges beside
     pixels at 255). Their 50 % crossings sit 0.37 px toward the dark side, so the part looked bigger,
-    so nearer: 0.8 mm off. Fitted without them it is within 0.3 mm. (The shop's parallels declared, as
-    its library declares them: without, its height is not told, 3-4 mm off either way, and refused.)"""
+    so nearer, and tilted: 0.8 mm and 0.29 deg off. The final fit without them is 0.6 mm and 0.02 deg
+    off, its height now told by the side faces alone (a sigma of 2 mm along the line of sight, no
+    longer matched to the 20 mm parallel). The shop's parallels are declared, as its library declares
+    them; without, its height is not told at all (3-4 mm off either way, and refused)."""
     res, obj, err = _run("setup_006", riser_heights_mm=SHOP_PARALLELS)
     assert res.ok, res.reason
-    assert np.linalg.norm(err[:3]) < 0.3 and np.nanmax(np.abs(err[3:])) < 0.1, err
+    assert np.linalg.norm(err[:3]) < 0.65 and np.nanmax(np.abs(err[3:])) < 0.05, err
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
     monkeypatch.setattr(refine_module, "near_clipped", lambda clipped, uv, *a, **k: np.zeros(len(uv), bool))
     _, _, err = _run("setup_006", riser_heights_mm=SHOP_PARALLELS)
-    assert np.linalg.norm(err[:3]) > 0.6, err
+    assert np.linalg.norm(err[:3]) > 0.7 and np.nanmax(np.abs(err[3:])) > 0.2, err
 
 
 def test_a_small_part_deep_between_the_jaws_is_found_where_the_jaws_hold_it(monkeypatch):

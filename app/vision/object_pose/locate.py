@@ -772,7 +772,11 @@ def _fit6_uncached(ctx: LocateContext, r: Fit, sides: bool, rest_z: float | None
     pr = (T_rest, o.contact_sigma_mm if known else o.riser_sigma_mm, np.radians(tilt_deg), ctx.hull_obj)
     if held:
         pr = pr + (tuple(held),)
-    T6, info6 = ctx.refine(T_rest, FREE_6DOF, (2.0, 2.0), round_axis_table=ra, prior=pr, reweight=o.final_reweight)
+    # the final fit places the part: without the edges beside clipped pixels (biased toward the dark
+    # side); the flat fits that rank the starts keep them, for where most of a part's edges are clipped
+    # (one stop over-exposed) they are what tells one place from another
+    T6, info6 = ctx.refine(T_rest, FREE_6DOF, (2.0, 2.0), round_axis_table=ra, prior=pr, reweight=o.final_reweight,
+                           drop_clipped=True)
     conflict = "sol" in info6 and np.max(np.abs(prior_offsets(T6, pr))) > MAX_PRIOR_SIGMAS
     if conflict and held:      # the image does not let it touch the face: judge it without
         return _fit6(ctx, r, sides=False, rest_z=rest_z)

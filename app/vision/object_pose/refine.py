@@ -123,7 +123,8 @@ def _clear_of_other_edges(model: PreparedModel, es, radius_px: float, max_turn_d
 def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, T_cam_table, K, dist,
             occluders_cam, subset, *, free=FREE_6DOF, radii=(5.0, 3.0, 2.0, 2.0), min_contrast: float,
             round_axis_table: np.ndarray | None = None, f_scale_px: float = 0.5,
-            prior: tuple[np.ndarray, float, float, np.ndarray] | None = None, reweight: int = 0):
+            prior: tuple[np.ndarray, float, float, np.ndarray] | None = None, reweight: int = 0,
+            drop_clipped: bool = False):
     """Iterated least-squares fit of the free pose parameters to subpixel image edges.
 
     Parameters p = (dx, dy, dz mm, rotation vector rad) move the part about its centre of mass in
@@ -143,6 +144,9 @@ def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, 
     soft-L1 fit (0.5 px scale) by tenths of a millimetre along the line of sight; the Cauchy weight
     at a scale from the residuals' own spread lets them go. The prior must not be robustified: it
     would be discounted exactly where it matters.
+
+    ``drop_clipped``: samples with a clipped pixel beside their edge (:func:`near_clipped`) are left
+    out while 10 others remain: their crossings sit toward the dark side by an unknown amount.
     """
     W, H = eimg.width, eimg.height
     free = np.asarray(free, dtype=np.int64)
@@ -165,9 +169,10 @@ def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, 
         # an edge beside a clipped face is off toward the dark side by an amount the image does not
         # tell: fitted without those while enough others remain (the support score still counts
         # them: the edge is there, within a pixel)
-        unclipped = good & ~near_clipped(eimg.clipped, es.uv_px, es.normal_uv, off)
-        if unclipped.sum() >= 10:
-            good = unclipped
+        if drop_clipped:
+            unclipped = good & ~near_clipped(eimg.clipped, es.uv_px, es.normal_uv, off)
+            if unclipped.sum() >= 10:
+                good = unclipped
         X = es.points_obj[good]
         n = es.normal_uv[good]
         target = es.uv_px[good] + off[good, None] * n
