@@ -74,12 +74,18 @@ def prepare_image(image: np.ndarray, *, gamma: float = 2.2, canny_low: float | N
     img = np.asarray(image)
     if img.dtype != np.uint8:
         raise ValueError(f"image must be 8-bit grey or BGR, got dtype {img.dtype}")
-    # a channel at the top clips the grey made from it too (a red face saturated in red only)
-    clipped = (img.max(axis=2) if img.ndim == 3 else img) >= CLIP_GREY
+    # a channel at the top clips the grey made from it too (a red face saturated in red only); the
+    # brightest channel per pixel with OpenCV (numpy's max over the last axis: 60 ms at 1920 x 1200)
+    top = img
     if img.ndim == 3:
+        chans = cv2.split(img)
+        top = chans[0]
+        for c in chans[1:]:
+            top = cv2.max(top, c)
         img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    clipped = top >= CLIP_GREY
     H, W = img.shape
-    lin = ((img.astype(np.float32) / 255.0) ** float(gamma)).astype(np.float32)
+    lin = _decode_table(float(gamma))[img]          # the same numbers as decoding each pixel
     sm = cv2.GaussianBlur(img, (0, 0), smooth_sigma_px) if smooth_sigma_px > 0 else img
     smf = sm.astype(np.float32)
     gx = cv2.Sobel(smf, cv2.CV_32F, 1, 0, ksize=3)
@@ -96,6 +102,11 @@ def prepare_image(image: np.ndarray, *, gamma: float = 2.2, canny_low: float | N
     edges = cv2.Canny(gx16, gy16, lo, hi, L2gradient=True)
     noise_lin = float(noise / 255.0 * gamma * 0.5 ** (gamma - 1))  # slope of the decode at mid-grey
     return _edge_image(lin, edges, np.arctan2(gy, gx), mag, noise_lin, float(gamma), clipped)
+
+
+def _decode_table(gamma: float) -> np.ndarray:
+    """(256,) float32: linear light of each grey level, ``(g / 255) ** gamma`` in float32."""
+    return ((np.arange(256).astype(np.float32) / 255.0) ** gamma).astype(np.float32)
 
 
 def _edge_image(lin, edges, angle, mag, noise_lin, gamma, clipped=None) -> EdgeImage:

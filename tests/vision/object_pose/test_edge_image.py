@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from app.geometry import parts
 from app.geometry.model_edges import prepare_model
@@ -84,3 +85,12 @@ def test_the_distance_map_is_made_on_first_use_only(monkeypatch):
     # OpenCV's 5x5 mask: within 3 % of the true distance
     assert np.all(np.abs(np.hypot(q[..., 0] - uu, q[..., 1] - vv) - d) <= 0.03 * d + 0.1)
     assert d[eimg.edges > 0].max() == 0.0
+
+
+@pytest.mark.parametrize("gamma", [1.0, 1.8, 2.2, 2.6])
+def test_the_decoded_image_is_each_grey_level_decoded(gamma):
+    """The decode by table gives the numbers decoding every pixel gives, at every grey level."""
+    grey = np.tile(np.arange(256, dtype=np.uint8), (4, 1))
+    eimg = prepare_image(grey, gamma=gamma)
+    assert eimg.linear.dtype == np.float32
+    assert np.array_equal(eimg.linear, ((grey.astype(np.float32) / 255.0) ** float(gamma)).astype(np.float32))
