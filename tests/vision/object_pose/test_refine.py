@@ -27,10 +27,10 @@ T_TRUE = pose_from_xyz_euler(0.0, 0.0, 0.0, 0.0, 0.0, 12.0)
 
 def _render(stripe: bool, top_shade: float | None = None) -> np.ndarray:
     """8-bit image (gamma 2.2) of the box on a dark table, its faces shaded by their normals,
-    antialiased by 8x supersampling, then blurred 0.7 px (the lens) before the sensor clips it; with
-    ``stripe``, a bright 1 px line runs 1.2 px outside the box's left silhouette along all of it (a
-    clamp's edge, a shadow's); ``top_shade``: the top face's linear brightness (over 1: beyond the
-    sensor's top, a polished face catching the lamp)."""
+    antialiased by 8x supersampling; with ``stripe``, a bright 1 px line runs 1.2 px outside the
+    box's left silhouette along all of it (a clamp's edge, a shadow's); ``top_shade``: the top face's
+    linear brightness (over 1: beyond the sensor's top, a polished face catching the lamp), the image
+    then blurred 0.7 px (the lens) before the sensor clips it."""
     Ks = K.copy()
     Ks[:2] *= SS
     Ks[:2, 2] += (SS - 1) / 2.0            # pixel centres: u_hi = 8 u + 3.5
