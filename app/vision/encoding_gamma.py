@@ -178,8 +178,7 @@ def _nearest_zero(bias: Callable[[float], float | None], assumed: float) -> floa
             best = int(cross[np.argmin(dist[cross])])
     if best is None:
         return None
-    i = best
-    return round(float(gs[i] + (gs[i + 1] - gs[i]) * bs[i] / (bs[i] - bs[i + 1] + 1e-12)), 2)
+    return round(float(gs[best] + (gs[best + 1] - gs[best]) * bs[best] / (bs[best] - bs[best + 1] + 1e-12)), 2)
 
 
 def read_encoding_gamma(gray: np.ndarray, corners_px: dict[int, np.ndarray],

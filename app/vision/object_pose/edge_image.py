@@ -120,6 +120,13 @@ def _edge_image(lin, edges, angle, mag, noise_lin, gamma, clipped=None) -> EdgeI
                      gamma=gamma, clipped=clipped, cache={"angle_full": angle, "mag_full": mag})
 
 
+def _with_edges(eimg: EdgeImage, edges: np.ndarray) -> EdgeImage:
+    """``eimg`` with fewer edge pixels (``edges``, a subset of its own): the same image, gamma, noise
+    and clipped pixels; its own caches start empty."""
+    return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
+                       eimg.noise_linear, eimg.gamma, eimg.clipped)
+
+
 def nearest_edge_maps(eimg: EdgeImage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per pixel (flattened, index ``v * width + u``): distance to the nearest edge pixel (px), and
     cos and sin of that edge pixel's gradient direction; made once per image and kept in its cache.
@@ -161,8 +168,7 @@ def mask_known_edges(eimg: EdgeImage, known: list[tuple[PreparedModel, np.ndarra
             eimg.cache[key] = (model, one)      # the model held: its id stays its own
         np.maximum(mask, eimg.cache[key][1], out=mask)
     edges = np.where(mask > 0, 0, eimg.edges).astype(np.uint8)
-    return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
-                       eimg.noise_linear, eimg.gamma, eimg.clipped)
+    return _with_edges(eimg, edges)
 
 
 def mask_table_regions(eimg: EdgeImage, regions_table: list, T_cam_table: np.ndarray, K, dist,
@@ -185,5 +191,4 @@ def mask_table_regions(eimg: EdgeImage, regions_table: list, T_cam_table: np.nda
     r = max(1, int(np.ceil(dilate_px)))
     mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
     edges = np.where(mask > 0, 0, eimg.edges).astype(np.uint8)
-    return _edge_image(eimg.linear, edges, eimg.cache.get("angle_full"), eimg.cache.get("mag_full"),
-                       eimg.noise_linear, eimg.gamma, eimg.clipped)
+    return _with_edges(eimg, edges)
