@@ -253,6 +253,19 @@ def project_points_px(P_cam: np.ndarray, K: np.ndarray, dist=None) -> np.ndarray
     return uv
 
 
+def project_points_jacobian(P_cam: np.ndarray, K: np.ndarray, dist=None) -> np.ndarray:
+    """(N, 2, 3): d(pixel) / d(camera-frame point) px per mm of :func:`project_points_px`'s projection,
+    every OpenCV distortion model: ``cv2.projectPoints``' Jacobian by its translation at the identity
+    pose (a point moved by dP projects as the point with the camera shifted by -dP)."""
+    P = np.asarray(P_cam, dtype=float).reshape(-1, 3)
+    if len(P) == 0:
+        return np.zeros((0, 2, 3))
+    dd = np.zeros(0) if dist is None else np.asarray(dist, dtype=float).ravel()
+    J = cv2.projectPoints(P.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), np.asarray(K, float),
+                          dd if len(dd) else None)[1]
+    return J[:, 3:6].reshape(-1, 2, 3)
+
+
 def face_planes(V, F, K: np.ndarray, width: int, height: int, cull_back_faces: bool = True):
     """What :func:`render_depth` draws of one mesh (vertices ``V`` mm in the camera frame, faces ``F``):
     the faces in front of the camera (and turned towards it, with ``cull_back_faces``) that cover a

@@ -171,3 +171,24 @@ def test_share_within_is_exact_when_it_reaches_the_need_and_below_it_when_not():
                 assert got == exact
             else:
                 assert exact <= got < need
+
+
+def test_the_projection_jacobian_is_the_projections_derivative_for_every_coefficient_count():
+    """``project_points_jacobian`` against central differences of ``project_points_px`` (px per mm),
+    no distortion, 4, 5, 8, 12 and 14 (tilted sensor) coefficients."""
+    from app.geometry.model_edges import project_points_jacobian
+
+    rng = np.random.default_rng(2)
+    P = rng.uniform([-300, -200, 500], [300, 200, 1500], (40, 3))
+    for dist in (None, [-0.1, 0.05, 1e-3, -2e-3], [-0.12, 0.08, 4e-4, -3e-4, -0.02],
+                 [-0.12, 0.08, 4e-4, -3e-4, -0.02, 0.01, -0.003, 0.002],
+                 [-0.12, 0.08, 4e-4, -3e-4, -0.02, 0.0, 0.0, 0.0, 1e-3, -2e-4, 5e-4, 1e-4],
+                 [-0.12, 0.08, 4e-4, -3e-4, -0.02, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.01, -0.02]):
+        d = None if dist is None else np.array(dist)
+        J = project_points_jacobian(P, K, d)
+        h = 1e-3
+        num = np.stack([(project_points_px(P + h * e, K, d) - project_points_px(P - h * e, K, d)) / (2 * h)
+                        for e in np.eye(3)], axis=-1)
+        assert J.shape == (40, 2, 3)
+        np.testing.assert_allclose(J, num, atol=1e-6 * np.abs(num).max())
+    assert project_points_jacobian(np.zeros((0, 3)), K).shape == (0, 2, 3)

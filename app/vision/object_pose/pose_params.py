@@ -36,6 +36,34 @@ def perturb(T_table_obj: np.ndarray, c_table: np.ndarray, p: np.ndarray) -> np.n
     return T @ T_table_obj
 
 
+def left_jacobian(rotvec: np.ndarray) -> np.ndarray:
+    """(3, 3) left Jacobian ``J_l`` of SO(3) at ``rotvec`` (rad): ``R(w + dw) ~ R(J_l dw) R(w)``."""
+    w = np.asarray(rotvec, float)
+    th = float(np.linalg.norm(w))
+    W = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if th < 1e-5:       # series: 1/2 - th^2/24, 1/6 - th^2/120
+        return np.eye(3) + (0.5 - th * th / 24.0) * W + (1.0 / 6.0 - th * th / 120.0) * (W @ W)
+    return np.eye(3) + (1.0 - np.cos(th)) / th ** 2 * W + (th - np.sin(th)) / th ** 3 * (W @ W)
+
+
+def perturb_point_jacobian(Y_table: np.ndarray, c_table: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(N, 3, 6): d(point) / dp (mm per mm, mm per rad) of the table-frame points ``Y_table`` (where
+    ``T_table_obj`` puts them) moved by :func:`perturb` with p (dx, dy, dz mm, rotation vector rad)
+    about ``c_table``: ``[I | -[R (Y - c)]x J_l]``."""
+    R = rotvec_matrix(p[3:6])
+    v = (np.asarray(Y_table, float) - c_table) @ R.T             # R (Y - c)
+    Jl = left_jacobian(p[3:6])
+    out = np.zeros((len(v), 3, 6))
+    out[:, 0, 0] = out[:, 1, 1] = out[:, 2, 2] = 1.0
+    # -[v]x Jl: rows of -[v]x are (0, v2, -v1), (-v2, 0, v0), (v1, -v0, 0)
+    Vx = np.zeros((len(v), 3, 3))
+    Vx[:, 0, 1], Vx[:, 0, 2] = v[:, 2], -v[:, 1]
+    Vx[:, 1, 0], Vx[:, 1, 2] = -v[:, 2], v[:, 0]
+    Vx[:, 2, 0], Vx[:, 2, 1] = v[:, 1], -v[:, 0]
+    out[:, :, 3:] = Vx @ Jl
+    return out
+
+
 def perturb3(T_table_obj: np.ndarray, c_table: np.ndarray, q: np.ndarray) -> np.ndarray:
     return perturb(T_table_obj, c_table, np.array([q[0], q[1], 0.0, 0.0, 0.0, q[2]]))
 

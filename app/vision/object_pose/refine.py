@@ -10,11 +10,12 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-from app.geometry.model_edges import PreparedModel, project_points_px, visible_edge_samples
+from app.geometry.model_edges import (PreparedModel, project_points_jacobian, project_points_px,
+                                      visible_edge_samples)
 from app.geometry.transforms import transform_points
 from app.vision.object_pose.edge_image import EdgeImage
-from app.vision.object_pose.pose_params import FREE_6DOF, perturb
-from app.vision.object_pose.uncertainty import PRIOR_PX, cauchy_weights, prior_offsets
+from app.vision.object_pose.pose_params import FREE_6DOF, perturb, perturb_point_jacobian
+from app.vision.object_pose.uncertainty import PRIOR_PX, cauchy_weights, prior_jacobian, prior_offsets
 
 
 def edges_along_normals(lin: np.ndarray, uv: np.ndarray, normal: np.ndarray, search_px: float,
@@ -204,13 +205,34 @@ def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, 
                 res = np.append(res, w_prior * prior_offsets(T1, prior))
             return res
 
+        Y = transform_points(T0, X)          # the samples in the table frame at the round's start
+        R_ct = T_cam_table[:3, :3]
+
+        def jac(q, X=X, Y=Y, n=n, T0=T0, c_table=c_table, pin=pin, w_prior=w_prior, sw=None):
+            """Analytic Jacobian of ``fun`` (the prior's rows by central differences): one projection
+            with its derivative instead of a projection per parameter."""
+            p = full(q)
+            T1 = perturb(T0, c_table, p)
+            duv = project_points_jacobian(transform_points(T_cam_table @ T1, X), K, dist)   # (N, 2, 3)
+            g = np.einsum("ni,nij->nj", n, duv) @ R_ct          # d(residual) / d(table point), px per mm
+            J = np.einsum("nj,njk->nk", g, perturb_point_jacobian(Y, c_table, p))
+            if sw is not None:
+                J = sw[:, None] * J
+            rows = [J]
+            if pin is not None:
+                rows.append(np.concatenate([np.zeros(3), 1e4 * pin])[None])
+            if prior is not None:
+                rows.append(w_prior * prior_jacobian(T0, c_table, p, prior, free))
+            return np.concatenate(rows)[:, free]
+
         xs = np.array([1.0, 1.0, 1.0, 1e-3, 1e-3, 1e-3])[free]
-        sol = least_squares(fun, np.zeros(len(free)), loss="soft_l1", f_scale=f_scale_px, method="trf",
+        sol = least_squares(fun, np.zeros(len(free)), jac=jac, loss="soft_l1", f_scale=f_scale_px, method="trf",
                             x_scale=xs, max_nfev=60)
         w = None
         for _ in range(reweight):
             w = cauchy_weights(fun(sol.x)[:len(X)])
-            sol = least_squares(fun, sol.x, kwargs={"sw": np.sqrt(w)}, method="trf", x_scale=xs, max_nfev=60)
+            sol = least_squares(fun, sol.x, jac=jac, kwargs={"sw": np.sqrt(w)}, method="trf", x_scale=xs,
+                                max_nfev=60)
         T = perturb(T0, c_table, full(sol.x))
         info = {"sol": sol, "X": X, "n": n, "target": target, "T0": T0, "c_table": c_table,
                 "n_visible": len(es.index), "n_used": int(good.sum()), "free": free, "pin": pin, "prior": prior,

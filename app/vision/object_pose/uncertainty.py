@@ -261,7 +261,14 @@ def _prior_information(info: dict, p: np.ndarray) -> np.ndarray | None:
     prior, free = info.get("prior"), info["free"]
     if prior is None:
         return None
-    T0, c_table = info["T0"], info["c_table"]
+    Jp = prior_jacobian(info["T0"], info["c_table"], p, prior, free)
+    return (Jp.T @ Jp)[np.ix_(free, free)]
+
+
+def prior_jacobian(T0: np.ndarray, c_table: np.ndarray, p: np.ndarray, prior, free) -> np.ndarray:
+    """(M, 6) d :func:`prior_offsets` / dp at ``perturb(T0, c_table, p)`` (central differences, 1e-3
+    mm and 1e-6 rad: the offsets have kinks where the lowest hull point changes), zero columns for
+    the parameters not in ``free``."""
     Jp = np.zeros((len(prior_offsets(T0, prior)), 6))
     for k in free:
         h = 1e-3 if k < 3 else 1e-6
@@ -269,7 +276,7 @@ def _prior_information(info: dict, p: np.ndarray) -> np.ndarray | None:
         dp[k] = h
         Jp[:, k] = (prior_offsets(perturb(T0, c_table, p + dp), prior)
                     - prior_offsets(perturb(T0, c_table, p - dp), prior)) / (2 * h)
-    return (Jp.T @ Jp)[np.ix_(free, free)]
+    return Jp
 
 
 def covariance_at(cov: np.ndarray, centre: np.ndarray, point: np.ndarray) -> np.ndarray:
