@@ -290,6 +290,30 @@ def test_markers_placed_off_their_layout_widen_the_table_sigma(scenes, monkeypat
     assert np.any(np.abs(d) > 3 * plain.sigma_xyz_mm), (d, plain.sigma_xyz_mm)
 
 
+def test_the_jackknife_is_the_spread_of_the_fits_without_one_marker(scenes, monkeypatch):
+    """The jackknife (taken one Gauss-Newton step from the full fit) matches the spread of the table
+    located again, each time with one marker left out of the layout, to 2 % in sigma."""
+    import app.vision.fiducials as fiducials
+    from app.vision.fiducials import _frame_step
+
+    sc, r = scenes[0]
+    seen = []
+    at_least = fiducials.at_least
+    monkeypatch.setattr(fiducials, "at_least", lambda cov, other: seen.append(other) or at_least(cov, other))
+    res = locate_table(r.image, sc.K, sc.dist, sc.table_layout, intrinsics_sigma=None, markers_placed=(0, 0, 0))
+    n = len(res.ids_used)
+    assert n >= fiducials.MIN_JACKKNIFE_MARKERS and len(seen) == 1
+    e = []
+    for i in res.ids_used:
+        without = {**sc.table_layout, "markers": [m for m in sc.table_layout["markers"] if m["id"] != i]}
+        again = locate_table(r.image, sc.K, sc.dist, without, intrinsics_sigma=None, markers_placed=(0, 0, 0))
+        assert set(again.ids_used) == set(res.ids_used) - {i}
+        e.append(_frame_step(res.T_cam_table, again.T_cam_table, res.centroid_table_mm))
+    d = np.asarray(e) - np.mean(e, axis=0)
+    refits = (n - 1) / n * d.T @ d
+    np.testing.assert_allclose(np.sqrt(np.diag(seen[0])), np.sqrt(np.diag(refits)), rtol=0.02)
+
+
 def _moved_layout(layout: dict, ids, rng, mm: float, deg: float, scale: float = 0.0) -> dict:
     """``layout`` with the markers ``ids`` moved ``mm`` (x, y, z) and turned ``deg`` (normal draws), and
     every marker printed ``scale`` larger."""
