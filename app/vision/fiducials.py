@@ -495,13 +495,13 @@ def _fit_jacobian(res) -> np.ndarray:
 
 
 def _intrinsics_jacobian(K, dist, T: np.ndarray, obj: dict, img: dict, edges: dict | None, use: list,
-                         centroid: np.ndarray) -> np.ndarray:
+                         centroid: np.ndarray, J_x: np.ndarray) -> np.ndarray:
     """(6, 3): how the final fit's pose (as its covariance: rotation rad, shift mm at ``centroid``)
     moves per unit of each of :func:`moved_intrinsics`' directions, linearised at the fit
     (Gauss-Newton, ``-J_x^+ dr/dk``, central differences in k). The markers' points are measured in
     the raw image; their ideal pixels are recomputed with the moved intrinsics. (Six refits give
-    the same columns to 1e-4 of their largest on the devset's 40 images, at 1.5x the table's time.)"""
-    J_x = _fit_jacobian(_final_residuals(K, T, obj, img, edges, use, centroid)[0])
+    the same columns to 1e-4 of their largest on the devset's 40 images, at 1.5x the table's time.)
+    ``J_x``: :func:`_fit_jacobian` of the final fit."""
     cols = []
     for k, h in enumerate(INTRINSICS_STEPS):
         r = []
@@ -515,18 +515,17 @@ def _intrinsics_jacobian(K, dist, T: np.ndarray, obj: dict, img: dict, edges: di
 
 
 def _placement_jacobian(K, T: np.ndarray, obj: dict, img: dict, edges: dict | None, use: list,
-                        centroid: np.ndarray) -> np.ndarray:
+                        centroid: np.ndarray, J_x: np.ndarray) -> np.ndarray:
     """(6, 4 n + 1): how the final fit's pose (as its covariance: rotation rad, shift mm at
     ``centroid``) moves per unit of each used marker's placement, linearised at the fit: per marker
     its centre along the table's x, y, z (mm) and its turn about its normal (rad), and last the
     print's scale (relative, all markers about their centres). Gauss-Newton: ``-J_x^+ J_p`` of the
-    final fit's residuals."""
+    final fit's residuals (``J_x``: :func:`_fit_jacobian` of the final fit)."""
     def residuals(o: dict):
         """The final fit's residual function with the markers' corners at ``o``."""
         return _final_residuals(K, T, o, img, edges, use, centroid)[0]
 
     at_fit = np.zeros(6)
-    J_x = _fit_jacobian(residuals(obj))
     moves: list[dict[int, np.ndarray]] = []        # per parameter: the corners' motion per unit
     scale = {}
     for i in use:
@@ -565,17 +564,16 @@ def placement_covariance(jacobian: np.ndarray, sigma: tuple[float, float, float]
 MIN_JACKKNIFE_MARKERS = 4
 
 
-def _marker_jackknife(K, T: np.ndarray, obj: dict, img: dict, edges: dict | None, use: list,
-                      centroid: np.ndarray) -> np.ndarray | None:
+def _marker_jackknife(use: list, marker: np.ndarray, r0: np.ndarray, J_x: np.ndarray) -> np.ndarray | None:
     """Jackknife covariance (6, 6; as the fit's) of the table pose over its markers, or None with
     fewer than :data:`MIN_JACKKNIFE_MARKERS`: ``(n - 1) / n * sum (e_i - mean)(e_i - mean)^T`` of the
     poses fitted without marker ``i`` (Efron & Stein 1981), each one Gauss-Newton step from the
-    full fit (the steps are hundredths of a millimetre, where the fit is linear)."""
+    full fit (the steps are hundredths of a millimetre, where the fit is linear): the final fit's
+    residuals ``r0`` at the fit, their markers ``marker`` and Jacobian ``J_x``
+    (:func:`_final_residuals`, :func:`_fit_jacobian`)."""
     n = len(use)
     if n < MIN_JACKKNIFE_MARKERS:
         return None
-    res, marker = _final_residuals(K, T, obj, img, edges, use, centroid)
-    r0, J_x = res(np.zeros(6)), _fit_jacobian(res)
     e = [-np.linalg.lstsq(J_x[marker != i], r0[marker != i], rcond=None)[0] for i in use]
     d = np.asarray(e) - np.mean(e, axis=0)
     return (n - 1) / n * d.T @ d
@@ -769,16 +767,19 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
     # their placement as the layout declares it, and at least what their disagreement shows
     final_edges = edges if fit_used == "edges" else None
     placed = placement_sigma(layout) if markers_placed is None else tuple(float(v) for v in markers_placed)
-    p_jac = _placement_jacobian(K, T, obj, img, final_edges, sorted(use), centroid)
+    # the final fit linearised once for the three responses below
+    res, marker = _final_residuals(K, T, obj, img, final_edges, use, centroid)
+    J_x = _fit_jacobian(res)
+    p_jac = _placement_jacobian(K, T, obj, img, final_edges, sorted(use), centroid, J_x)
     cov = cov + placement_covariance(p_jac, placed)
-    jack = _marker_jackknife(K, T, obj, img, final_edges, use, centroid)
+    jack = _marker_jackknife(use, marker, res(np.zeros(6)), J_x)
     if jack is not None:
         cov = at_least(cov, jack)
     sig = np.sqrt(np.clip(np.diag(cov), 0, None))
     sigma_rot_deg, sigma_xyz = np.degrees(sig[:3]), sig[3:]
     k_jac = None
     if intrinsics_sigma is not None:
-        k_jac = _intrinsics_jacobian(K, dist, T, obj, img, final_edges, use, centroid)
+        k_jac = _intrinsics_jacobian(K, dist, T, obj, img, final_edges, use, centroid, J_x)
     rms = float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
     return TablePose(
         T_cam_table=T, ids_used=tuple(sorted(use)), ids_rejected=tuple(rejected), rms_px=rms,
