@@ -40,9 +40,10 @@ Pipeline of :func:`locate_table`:
    it, and a marker 0.1 mm off moves a 3-marker table up to 0.6 mm along the line of sight (the
    table's distance rests on the markers' spread). With 4 or more markers the covariance is
    then held at least as large as the jackknife over the markers (the fit taken without each in
-   turn, one Gauss-Newton step from the full fit): a marker placed, turned or printed off its layout moves all its points alike, which the
-   points' scatter does not show (the devset told its layout 0.2 mm / 0.2 deg / 0.2 % off: NEES per
-   dof 2.8 -> 1.9, no longer a result passing the gate beyond 1.3 sigma).
+   turn, one Gauss-Newton step from the full fit): a marker placed, turned or printed off its
+   layout moves all its points alike, which the points' scatter does not show (the devset told its
+   layout 0.2 mm / 0.2 deg / 0.2 % off: NEES per dof 2.8 -> 1.9, no longer a result passing the gate
+   beyond 1.3 sigma).
 
 Pixel convention: OpenCV (u, v), pixel centres at integers, ``img[v, u]``. Marker corners in
 OpenCV's order, marker frame as in DESIGN (corner 0 at (-s/2, +s/2, 0)).
