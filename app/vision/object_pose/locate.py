@@ -139,8 +139,12 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
                     + (" where it can be (its guide)" if keep_pose is not None else ""))
     t = time.perf_counter()                                                # stage 4: verification
     best, fits, sym_scores = _choose(ctx, fits)
-    rivals = _rivals(ctx, best, fits)
-    refusal, distinct_drop = _refusal(ctx, best, rivals)
+    # a fit too weak or not distinct is refused before its rivals are weighed: their 6-DoF fits are
+    # most of the verification's time, and recognition fully fits several models that are neither
+    refusal, distinct_drop = _weak_or_not_distinct(ctx, best)
+    if refusal is None:
+        rivals = _rivals(ctx, best, fits)
+        refusal = _refusal(ctx, best, rivals)
     timings["verify"] = (time.perf_counter() - t) * 1e3
     if refusal is not None:
         return fail(*refusal, best.score, [{"T_table_obj": f.T.tolist(), "score": round(f.score, 4)} for f in fits])
@@ -641,9 +645,10 @@ def _rivals(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Rivals:
                   flip_runner=max((r.score for r in flips), default=float("nan")), stronger=stronger)
 
 
-def _refusal(ctx: LocateContext, best: Fit, rv: Rivals) -> tuple[tuple[str, str] | None, float]:
-    """``(kind, reason)`` when the best pose is not good enough to return, else None; and the
-    pose's distinctiveness (NaN where not reached)."""
+def _weak_or_not_distinct(ctx: LocateContext, best: Fit) -> tuple[tuple[str, str] | None, float]:
+    """``(kind, reason)`` when the best fit did not converge, supports less than ``min_score`` of its
+    visible edges or is not distinct (:func:`_distinctiveness`), else None; and the pose's
+    distinctiveness (NaN where not reached). Judged on the fit alone, before its rivals."""
     o, name = ctx.opts, ctx.model.name
     if not best.converged:
         return ("not_found", f"{name} not found: {best.info.get('failed', 'the fit did not converge')}"), float("nan")
@@ -657,12 +662,19 @@ def _refusal(ctx: LocateContext, best: Fit, rv: Rivals) -> tuple[tuple[str, str]
                              f"distinct: moved a few pixels in {weakest} it still fits {best.score - drop:.0%} "
                              f"(need a drop of {o.min_distinctiveness:.0%}); it lies on straight edges or "
                              f"texture, not on the part"), drop
+    return None, drop
+
+
+def _refusal(ctx: LocateContext, best: Fit, rv: Rivals) -> tuple[str, str] | None:
+    """``(kind, reason)`` when a fit that passed :func:`_weak_or_not_distinct` is still not good enough
+    to return (a stronger or an equal rival, too much of the image left unexplained), else None."""
+    o, name = ctx.opts, ctx.model.name
     if rv.stronger:
         r = max(rv.stronger, key=lambda r: r.support_px)
         return ("ambiguous", f"{name} ambiguous: the best fit ({best.score:.0%} of its visible edges) leaves more of "
                              f"the image unexplained than another pose that fits {r.score:.0%} of its edges but "
                              f"explains {r.support_px / max(best.support_px, 1e-9):.1f} times the edge length; "
-                             f"take another view or give the pose roughly"), drop
+                             f"take another view or give the pose roughly")
     # a part hides what lies behind it: edges inside its outline that it does not explain are not
     # behind it (our generator's synth_042: a bracket read on clutter, 86 % unexplained)
     u = ctx.unexplained(best.T)
@@ -670,12 +682,12 @@ def _refusal(ctx: LocateContext, best: Fit, rv: Rivals) -> tuple[tuple[str, str]
         return ("not_found", f"{name} not found: the best fit ({best.score:.0%} of its visible edges) leaves "
                              f"{u:.0%} of the image edges inside its outline unexplained (at most "
                              f"{o.max_unexplained:.0%}); a part would hide what made them, so it is not there; "
-                             f"it may be hidden by something that is not in the library"), drop
+                             f"it may be hidden by something that is not in the library")
     if rv.rivals and rv.rival_margin < o.min_margin:
         return ("ambiguous", f"{name} ambiguous: two different poses fit almost equally well "
                              f"({best.score:.0%} and {best.score - rv.rival_margin:.0%} of the visible edges, margin "
-                             f"{rv.rival_margin:.0%} < {o.min_margin:.0%}); take another view or give the pose roughly"), drop
-    return None, drop
+                             f"{rv.rival_margin:.0%} < {o.min_margin:.0%}); take another view or give the pose roughly")
+    return None
 
 
 #: a located pose whose position is uncertain (1 sigma, any axis) by more than this share of the part's

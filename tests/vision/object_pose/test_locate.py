@@ -242,6 +242,24 @@ def test_recognition_accepts_the_part_and_refuses_absent_ones(models, clamped, m
     assert rec2.reason.startswith("not recognised: no candidate reached 60% with a margin of 10% (top: ")
 
 
+def test_a_fit_below_the_least_score_is_refused_before_its_rivals_are_weighed(models, clamped, monkeypatch):
+    """Recognition fits several models that score below its floor: their rivals' 6-DoF fits (most of a
+    full fit's time) are not made, and the answer says how much the best fit supports."""
+    scene, r, _, _ = clamped
+    weighed = []
+    real = locate_module._rivals
+    monkeypatch.setattr(locate_module, "_rivals", lambda *a: weighed.append(1) or real(*a))
+    res = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma,
+                        min_score=0.99)
+    assert isinstance(res, ObjectFailure) and res.kind == "not_found" and not weighed
+    assert res.reason.startswith("bracket_140 not found: the best fit supports only ")
+    assert res.reason.endswith("of its visible edges (need 99%); the part may be hidden, outside the image or "
+                               "a different model")
+    assert 0.5 < res.best_score < 0.99
+    ok = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma)
+    assert isinstance(ok, ObjectPose) and weighed          # a fit that reaches it is weighed as before
+
+
 def test_failure_answers_are_sentences(models, clamped):
     scene, r, _, _ = clamped
     blank = np.full((H, W), 128, np.uint8)
