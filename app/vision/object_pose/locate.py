@@ -646,15 +646,17 @@ def _rivals(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Rivals:
 
 
 def _weak_or_not_distinct(ctx: LocateContext, best: Fit) -> tuple[tuple[str, str] | None, float]:
-    """``(kind, reason)`` when the best fit did not converge, supports less than ``min_score`` of its
-    visible edges or is not distinct (:func:`_distinctiveness`), else None; and the pose's
-    distinctiveness (NaN where not reached). Judged on the fit alone, before its rivals."""
+    """``(kind, reason)`` when the best fit did not converge, supports less than ``min_score`` (or
+    ``min_verified_score``) of its visible edges or is not distinct (:func:`_distinctiveness`), else
+    None; and the pose's distinctiveness (NaN where not reached). Judged on the fit alone, before its
+    rivals."""
     o, name = ctx.opts, ctx.model.name
     if not best.converged:
         return ("not_found", f"{name} not found: {best.info.get('failed', 'the fit did not converge')}"), float("nan")
-    if best.score < o.min_score:
+    least = max(o.min_score, o.min_verified_score)
+    if best.score < least:
         return ("not_found", f"{name} not found: the best fit supports only {best.score:.0%} of its visible "
-                             f"edges (need {o.min_score:.0%}); the part may be hidden, outside the image or a "
+                             f"edges (need {least:.0%}); the part may be hidden, outside the image or a "
                              f"different model"), float("nan")
     drop, weakest = _distinctiveness(ctx, best)
     if weakest:

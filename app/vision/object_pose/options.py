@@ -25,6 +25,11 @@ class LocateOptions:
     resting_states : indices into ``model.resting_states`` to try (None: the distinct states with a
         probability of at least 0.1, the likeliest and the CAD z-up/z-down stances)
     min_score : least share of visible model edges supported by image edges to accept
+    min_verified_score : a best fit under this share is refused as too weak before its rivals,
+        contact fit and sigma are worked out, as one under ``min_score`` is; recognition sets its own
+        floor here and keeps ``min_score`` at 0, so that a model's readings are chosen as before (a
+        turned-over reading replaces the first whatever its score) and only the work on a fit that
+        cannot be accepted is saved
     min_margin : least score difference to the best different pose
     min_distinctiveness : least drop of the score when the fitted pose is moved by 4 px along x, y or
         turned as much (fits onto a single straight edge or onto texture do not drop and are refused)
@@ -60,6 +65,7 @@ class LocateOptions:
     free_height: bool = False
     resting_states: tuple | None = None
     min_score: float = 0.5
+    min_verified_score: float = 0.0
     min_margin: float = 0.1
     min_distinctiveness: float = 0.1
     max_unexplained: float = 0.7

@@ -30,7 +30,10 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
     ``2 * n_full`` tried: a coarse score that the full fit does not keep, a bar fitted to a vise's
     edges, does not use up a place), and ranked by their verification score; the others keep their
     coarse score ("coarse only"). Each is located with ``min_margin`` as a named part is (its readings
-    chosen and its own ambiguity judged by it), with no least score (the ranking applies ``min_score``).
+    chosen and its own ambiguity judged by it), with no least score (the ranking applies ``min_score``);
+    a best fit under ``min_score`` is refused there before its rivals, contact fit and sigma are worked
+    out (``LocateOptions.min_verified_score``): it can neither be accepted nor stand in another's way,
+    and it is ranked by the same score ("supports only ...").
     ``table_extent_xy`` (x0, x1, y0, y1 mm, in ``locate_kw``): the table top, where a part's centre is
     searched (grown by half its size); without it, wherever image edges meet the plane (a tool
     over the table's back edge, seen beyond it, would be searched too).
@@ -84,7 +87,7 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
             # "ambiguous" against the one it keeps
             told(n + tried, f"fitting {m.name}, the {_ordinal(tried + 1)} best of the search")
             r = locate_object(None, K, dist, T_cam_table, m, edge_image=eimg,
-                              options=opts.with_(min_score=0.0, min_margin=min_margin), **scene_kw)
+                              options=opts.with_(min_score=0.0, min_verified_score=min_score, min_margin=min_margin), **scene_kw)
             tried += 1
             fitted += isinstance(r, ObjectPose) and r.score >= min_score
         else:

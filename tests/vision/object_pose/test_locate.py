@@ -243,8 +243,8 @@ def test_recognition_accepts_the_part_and_refuses_absent_ones(models, clamped, m
 
 
 def test_a_fit_below_the_least_score_is_refused_before_its_rivals_are_weighed(models, clamped, monkeypatch):
-    """Recognition fits several models that score below its floor: their rivals' 6-DoF fits (most of a
-    full fit's time) are not made, and the answer says how much the best fit supports."""
+    """A fit below the least score (recognition's floor: ``min_verified_score``) is refused before its
+    rivals' 6-DoF fits (most of a full fit's time) are made, and the answer says how much it supports."""
     scene, r, _, _ = clamped
     weighed = []
     real = locate_module._rivals
@@ -256,6 +256,10 @@ def test_a_fit_below_the_least_score_is_refused_before_its_rivals_are_weighed(mo
     assert res.reason.endswith("of its visible edges (need 99%); the part may be hidden, outside the image or "
                                "a different model")
     assert 0.5 < res.best_score < 0.99
+    floor = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma,
+                          min_score=0.0, min_verified_score=0.99)
+    assert isinstance(floor, ObjectFailure) and not weighed
+    assert floor.reason == res.reason and floor.best_score == res.best_score
     ok = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma)
     assert isinstance(ok, ObjectPose) and weighed          # a fit that reaches it is weighed as before
 
