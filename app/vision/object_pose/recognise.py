@@ -87,7 +87,8 @@ def recognise(image, K, dist, T_cam_table, candidates: list[PreparedModel], *, m
             # "ambiguous" against the one it keeps
             told(n + tried, f"fitting {m.name}, the {_ordinal(tried + 1)} best of the search")
             r = locate_object(None, K, dist, T_cam_table, m, edge_image=eimg,
-                              options=opts.with_(min_score=0.0, min_verified_score=min_score, min_margin=min_margin), **scene_kw)
+                              options=opts.with_(min_score=0.0, min_verified_score=min_score, min_margin=min_margin),
+                              **scene_kw)
             tried += 1
             fitted += isinstance(r, ObjectPose) and r.score >= min_score
         else:
