@@ -67,7 +67,9 @@ def in_vise(rng, name: str, mesh: trimesh.Trimesh, vise: trimesh.Trimesh, vise_n
     T_vise = pose_from_xyz_euler(x, y, 0.0, c_deg=c) @ make_pose(None, [-0.5 * opening, 0.0, 0.0])
     h_seat = float(seat["z_mm"])
     h_par = float(parallel.bounds[1, 2])
-    objs = [SceneObject(name, mesh, _part_pose(mesh, T_vise, 0.5 * across + 0.5, 0.0, yaw, h_seat + h_par),
+    # clamped: its side against the fixed jaw's face (0.05 mm apart, so that the renderer does not
+    # see two coplanar faces; until the twentieth stop 0.5 mm: a part that no jaw touched)
+    objs = [SceneObject(name, mesh, _part_pose(mesh, T_vise, 0.5 * across + 0.05, 0.0, yaw, h_seat + h_par),
                         albedo=float(rng.uniform(0.5, 0.75))),
             SceneObject(vise_name, vise, T_vise, albedo=0.4)]
     t = float(parallel.extents[1])
