@@ -160,14 +160,17 @@ def test_a_part_whose_top_is_over_the_sensors_top_is_fitted_without_the_edges_be
     so nearer, and tilted: 0.8 mm and 0.29 deg off. The final fit without them is 0.6 mm and 0.02 deg
     off, its height now told by the side faces alone (a sigma of 2 mm along the line of sight, no
     longer matched to the 20 mm parallel). The shop's parallels are declared, as its library declares
-    them; without, its height is not told at all (3-4 mm off either way, and refused)."""
+    them; without, its height is not told at all (3-4 mm off either way, and refused). Held flush
+    against its located jaws since the twentieth stop: 0.40 mm, and turned as the jaws are located
+    (0.07 deg, within a quarter of its sigma)."""
     res, obj, err = _run("setup_006", riser_heights_mm=SHOP_PARALLELS)
     assert res.ok, res.reason
-    assert np.linalg.norm(err[:3]) < 0.65 and np.nanmax(np.abs(err[3:])) < 0.05, err
+    assert np.linalg.norm(err[:3]) < 0.5 and np.nanmax(np.abs(err[3:])) < 0.1, err
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
     monkeypatch.setattr(refine_module, "near_clipped", lambda clipped, uv, *a, **k: np.zeros(len(uv), bool))
     _, _, err = _run("setup_006", riser_heights_mm=SHOP_PARALLELS)
-    assert np.linalg.norm(err[:3]) > 0.7 and np.nanmax(np.abs(err[3:])) > 0.2, err
+    # with them it is off as before (held flush: 0.72 mm and 0.19 deg)
+    assert np.linalg.norm(err[:3]) > 0.7 and np.nanmax(np.abs(err[3:])) > 0.15, err
 
 
 def test_a_small_part_deep_between_the_jaws_is_found_where_the_jaws_hold_it(monkeypatch):

@@ -26,6 +26,15 @@ MAX_NORMAL_Z = 0.05
 #: jaw); further off, the fixture itself may be misplaced (setup_006: a vise 2.6 mm off, held there,
 #: put the part 1.6 mm off instead of 0.8)
 MAX_GAP_MM = 1.5
+#: a flat side of the part held against a jaw face cannot turn out of the jaw's plane (about the
+#: table normal, nor about the jaw's horizontal axis): 1 sigma of that turn (a machined side's
+#: squareness and the jaw's flatness), on top of the located fixture's own turn
+FLUSH_SIGMA_DEG = 0.05
+#: a part side counts as held flush when at the start it lies within this of the jaw's plane (the
+#: jaws' starts put it there; a side turned further off is not against the face)
+FLUSH_MAX_DEG = 2.0
+#: a part side is a flat that can be held from this area (mm^2): a pin's or a chamfer's facets are not
+FLUSH_MIN_AREA_MM2 = 100.0
 
 
 @dataclass(frozen=True)
@@ -38,18 +47,59 @@ class Face:
     d: float
     pts: np.ndarray
     var_mm2: float = 0.0
+    #: variance (rad^2) of the face's turn about the table normal and about its horizontal axis
+    turn_var_rad2: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)
 class SideContact:
     """A part face against a fixture face: the part's extreme point along ``n`` lies on ``n . x = d``
-    within ``sigma_mm``; ``gap_mm`` is how far the part's face was from it before the fit."""
+    within ``sigma_mm``; ``gap_mm`` is how far the part's face was from it before the fit. Where a
+    flat side of the part lies against it, ``flat_obj`` is that side's outward normal (obj frame),
+    held opposite ``n`` within ``turn_sigma_rad`` (about the table normal, about the face's
+    horizontal axis)."""
 
     name: str
     n: np.ndarray
     d: float
     sigma_mm: float
     gap_mm: float
+    flat_obj: np.ndarray | None = None
+    turn_sigma_rad: tuple[float, float] = (float("nan"), float("nan"))
+
+
+@dataclass(frozen=True)
+class Flats:
+    """The part's plane sides that can be held (obj frame): outward unit normals (k, 3), a point on
+    each (k, 3) and their areas (k,) mm^2."""
+
+    normals: np.ndarray
+    origins: np.ndarray
+    areas: np.ndarray
+
+
+def part_flats(mesh: trimesh.Trimesh, min_area_mm2: float = FLUSH_MIN_AREA_MM2) -> Flats:
+    """The plane sides of ``mesh`` (its facets, and single triangles) of at least ``min_area_mm2``."""
+    normals, origins, areas = [], [], []
+    in_facet = np.zeros(len(mesh.faces), bool)
+    for fi, (n, o, a) in enumerate(zip(mesh.facets_normal, mesh.facets_origin, mesh.facets_area)):
+        in_facet[mesh.facets[fi]] = True
+        if a >= min_area_mm2:
+            normals.append(n)
+            origins.append(o)
+            areas.append(a)
+    big = np.nonzero(~in_facet & (mesh.area_faces >= min_area_mm2))[0]
+    normals += list(mesh.face_normals[big])
+    origins += list(mesh.triangles_center[big])
+    areas += list(mesh.area_faces[big])
+    return Flats(np.asarray(normals, float).reshape(-1, 3), np.asarray(origins, float).reshape(-1, 3),
+                 np.asarray(areas, float))
+
+
+def _along_face(n: np.ndarray) -> np.ndarray:
+    """The face's horizontal axis: the table normal crossed with its (horizontal) normal, unit."""
+    u = np.cross([0.0, 0.0, 1.0], n)
+    return u / max(float(np.linalg.norm(u)), 1e-12)
 
 
 def _faces(mesh: trimesh.Trimesh, T: np.ndarray, name: str, vertical: bool, min_area: float) -> list[Face]:
@@ -73,14 +123,20 @@ def fixture_faces(mesh: trimesh.Trimesh, T_table_fix: np.ndarray, name: str,
     if cov_origin is None:
         return faces
     o = np.asarray(T_table_fix, float)[:3, 3]
+    cov = np.asarray(cov_origin, float)
     out = []
     for f in faces:
         # d(n . p) for a move dt and a turn w of the fixture about its origin: n . dt + ((c - o) x n) . w
         J = np.concatenate([f.n, np.cross(f.pts.mean(axis=0) - o, f.n)])
         JJ = np.outer(J, J)
-        var = float(np.sum(np.where(JJ != 0.0, np.asarray(cov_origin, float) * JJ, 0.0)))
+        var = float(np.sum(np.where(JJ != 0.0, cov * JJ, 0.0)))
+        # the face turns with the fixture: about the table normal and about its own horizontal axis
+        u = _along_face(f.n)
+        turn = (float(cov[5, 5]), float(u @ cov[3:, 3:] @ u))
         if np.isfinite(var):      # a face whose place is not known (NaN) holds nothing
-            out.append(Face(name=f.name, n=f.n, d=f.d, pts=f.pts, var_mm2=max(var, 0.0)))
+            # (nor flush where its turn is not known: inf)
+            out.append(Face(name=f.name, n=f.n, d=f.d, pts=f.pts, var_mm2=max(var, 0.0),
+                            turn_var_rad2=tuple(max(v, 0.0) if np.isfinite(v) else np.inf for v in turn)))
     return out
 
 
@@ -96,15 +152,22 @@ def _overlap(a: np.ndarray, b: np.ndarray, n: np.ndarray, tol_mm: float = 0.5) -
 
 
 def side_contacts(faces: list[Face], hull_obj: np.ndarray, T_table_obj: np.ndarray,
-                  contact_sigma_mm: float, max_gap_mm: float = MAX_GAP_MM) -> list[SideContact]:
+                  contact_sigma_mm: float, max_gap_mm: float = MAX_GAP_MM, flats: Flats | None = None,
+                  flush_sigma_deg: float = FLUSH_SIGMA_DEG) -> list[SideContact]:
     """Fixture faces that the part at ``T_table_obj`` (its convex hull's vertices ``hull_obj``, obj
     frame) stands against: its extreme points towards the face are within ``max_gap_mm`` of it and
     within its outline (a flat side, or a boss's line, against a jaw). Each contact's sigma is the
     contact's own (``contact_sigma_mm``: a burr, the jaw's flatness) and the fixture's pose along the
-    normal. At most one contact per normal direction (the nearest)."""
+    normal. At most one contact per normal direction (the nearest). Of the part's ``flats``, the
+    largest that lies against the face (within :data:`FLUSH_MAX_DEG` of its plane, at the part's
+    extreme towards it) is held flush: its turn within ``flush_sigma_deg`` and the fixture's own."""
     if not faces:
         return []
-    P = transform_points(np.asarray(T_table_obj, float), hull_obj)
+    T = np.asarray(T_table_obj, float)
+    P = transform_points(T, hull_obj)
+    N = at = None                         # the flats' normals and points, table frame
+    if flats is not None and len(flats.areas):
+        N, at = flats.normals @ T[:3, :3].T, transform_points(T, flats.origins)
     best: dict = {}
     for f in faces:
         ext = P @ f.n
@@ -113,8 +176,17 @@ def side_contacts(faces: list[Face], hull_obj: np.ndarray, T_table_obj: np.ndarr
             continue
         key = tuple(np.round(f.n, 1))
         if key not in best or abs(gap) < abs(best[key].gap_mm):
+            flat, turn = None, (float("nan"), float("nan"))
+            if N is not None and np.all(np.isfinite(f.turn_var_rad2)):
+                against = (N @ -f.n >= np.cos(np.radians(FLUSH_MAX_DEG))) & (np.abs(at @ f.n - ext.min()) <= 0.5)
+                if against.any():
+                    k = int(np.argmax(np.where(against, flats.areas, -1.0)))
+                    flat = flats.normals[k]
+                    s2 = np.radians(flush_sigma_deg) ** 2
+                    turn = (float(np.sqrt(s2 + f.turn_var_rad2[0])), float(np.sqrt(s2 + f.turn_var_rad2[1])))
             best[key] = SideContact(name=f.name, n=f.n, d=f.d,
-                                    sigma_mm=float(np.sqrt(contact_sigma_mm ** 2 + f.var_mm2)), gap_mm=gap)
+                                    sigma_mm=float(np.sqrt(contact_sigma_mm ** 2 + f.var_mm2)), gap_mm=gap,
+                                    flat_obj=flat, turn_sigma_rad=turn)
     return list(best.values())
 
 
@@ -122,6 +194,19 @@ def side_gaps(P_table: np.ndarray, contacts) -> np.ndarray:
     """(gap / sigma) of each contact for the part's hull points ``P_table`` (table frame): its extreme
     point along the face normal against the face (0 when touching)."""
     return np.array([(float((P_table @ c.n).min()) - c.d) / c.sigma_mm for c in contacts])
+
+
+def side_turns(R_table_obj: np.ndarray, contacts) -> np.ndarray:
+    """(turn / sigma) of each flat side held against its face (:attr:`SideContact.flat_obj`): the small
+    rotation that would lay it back against the face, about the table normal and about the face's
+    horizontal axis (0 when flush); two per held flat, none for a contact without one."""
+    out = []
+    for c in contacts:
+        if c.flat_obj is None:
+            continue
+        w = np.cross(R_table_obj @ c.flat_obj, -c.n)       # takes the side's normal onto -n
+        out += [w[2] / c.turn_sigma_rad[0], float(w @ _along_face(c.n)) / c.turn_sigma_rad[1]]
+    return np.asarray(out, float)
 
 
 def side_offsets(T: np.ndarray, hull_obj: np.ndarray, contacts) -> np.ndarray:

@@ -19,7 +19,7 @@ from app.geometry.model_edges import (
 )
 from app.geometry.transforms import check_pose, inv, make_pose, transform_points
 from app.vision.blas_threads import one_blas_thread
-from app.vision.object_pose.clamping import side_contacts
+from app.vision.object_pose.clamping import Flats, part_flats, side_contacts
 from app.vision.object_pose.datum import choose_datum
 from app.vision.object_pose.edge_image import (
     EdgeImage,
@@ -211,6 +211,14 @@ class LocateContext:
     _unexplained: dict = field(default_factory=dict, repr=False)
     _sharp: dict = field(default_factory=dict, repr=False)
     _fit6: dict = field(default_factory=dict, repr=False)
+    _flats: Flats | None = field(default=None, repr=False)
+
+    @property
+    def flats(self) -> Flats:
+        """The part's plane sides that a jaw can hold flush (:func:`.clamping.part_flats`), once."""
+        if self._flats is None:
+            self._flats = part_flats(self.model.mesh)
+        return self._flats
 
     @property
     def pos_tol(self) -> float:
@@ -780,7 +788,8 @@ def _fit6_uncached(ctx: LocateContext, r: Fit, sides: bool, rest_z: float | None
     ra = None if model.continuous_axis_obj is None else r.T[:3, :3] @ model.continuous_axis_obj
     T_rest = r.T if rest_z is None else make_pose(None, [0.0, 0.0, rest_z - ctx.lowest_z(r.T)]) @ r.T
     known = rest_z is not None or ctx.on_known_surface(r.T)
-    held = side_contacts(ctx.clamp_faces, ctx.hull_obj, T_rest, o.contact_sigma_mm) if sides else []
+    held = side_contacts(ctx.clamp_faces, ctx.hull_obj, T_rest, o.contact_sigma_mm,
+                         flats=ctx.flats if ctx.clamp_faces else None) if sides else []
     lying_free = known and not held and abs(ctx.lowest_z(T_rest)) < 0.5     # on the table itself (z = 0)
     tilt_deg = o.free_contact_sigma_deg if lying_free else o.contact_sigma_deg
     pr = (T_rest, o.contact_sigma_mm if known else o.riser_sigma_mm, np.radians(tilt_deg), ctx.hull_obj)

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from app.geometry.model_edges import PreparedModel, project_points_px
 from app.geometry.transforms import inv, transform_points
 from app.vision.intrinsics import INTRINSICS_STEPS, moved_intrinsics
-from app.vision.object_pose.clamping import side_gaps
+from app.vision.object_pose.clamping import side_gaps, side_turns
 from app.vision.object_pose.pose_params import perturb
 
 # The least-squares sigma (cluster-robust over model edges, contact prior) still misses what is
@@ -73,18 +73,21 @@ def cauchy_weights(res_px: np.ndarray) -> np.ndarray:
 
 
 def prior_offsets(T: np.ndarray, prior) -> np.ndarray:
-    """(dz / sigma_z, tilt_x / sigma_t, tilt_y / sigma_t, then one gap / sigma per side contact) of
+    """(dz / sigma_z, tilt_x / sigma_t, tilt_y / sigma_t, then one gap / sigma per side contact and two
+    turns / sigma per flat side held flush against one) of
     ``T`` against the prior ``(T_rest, sigma_z_mm, sigma_tilt_rad, hull_obj[, side contacts])``.
 
     ``dz`` is the height of the part's lowest point (over ``hull_obj``, its convex hull's vertices,
     obj frame) above the lowest point at rest: a part tilted by a chip under one edge still touches
     its support with the other, so its lowest point stays on the surface while its centre rises. A
-    side contact (:mod:`.clamping`: a vise jaw) holds the part's extreme point along its normal."""
+    side contact (:mod:`.clamping`: a vise jaw) holds the part's extreme point along its normal, and a
+    flat side against it flush."""
     T_rest, sz, st, hull_obj = prior[:4]
     P = transform_points(T, hull_obj)
     dz = float(P[:, 2].min() - transform_points(T_rest, hull_obj)[:, 2].min())
     rv = Rotation.from_matrix(T[:3, :3] @ T_rest[:3, :3].T).as_rotvec()
-    sides = side_gaps(P, prior[4]) if len(prior) > 4 else np.zeros(0)
+    sides = np.concatenate([side_gaps(P, prior[4]), side_turns(T[:3, :3], prior[4])]) if len(prior) > 4 \
+        else np.zeros(0)
     return np.concatenate([[dz / sz, rv[0] / st, rv[1] / st], sides])
 
 

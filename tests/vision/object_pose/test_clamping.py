@@ -10,7 +10,9 @@ import pytest
 import trimesh
 
 from app.geometry.transforms import make_pose
-from app.vision.object_pose.clamping import fixture_faces, side_contacts, side_offsets
+from app.geometry.transforms import pose_from_xyz_euler
+from app.vision.object_pose.clamping import (FLUSH_SIGMA_DEG, fixture_faces, part_flats, side_contacts,
+                                           side_offsets, side_turns)
 
 
 def _box(lo, hi) -> trimesh.Trimesh:
@@ -47,6 +49,44 @@ def test_a_round_boss_against_a_jaw_is_held_too():
     touching = make_pose(None, (-held[0].gap_mm, 0.0, 0.0))
     np.testing.assert_allclose(side_offsets(touching, hull, held), [0.0], atol=1e-9)
     np.testing.assert_allclose(side_offsets(np.eye(4), hull, held), [0.3 / 0.15], atol=0.2)
+
+
+def test_a_flat_side_against_a_jaw_is_held_flush_and_a_boss_is_not():
+    """A part's plane side against the jaw cannot turn out of the jaw's plane: two turn residuals, 0
+    when flush, the turn over its sigma about the table normal and about the jaw's horizontal axis."""
+    part = _box((0.0, -30.0, 75.0), (50.0, 30.0, 105.0))
+    hull = np.asarray(part.convex_hull.vertices)
+    faces = fixture_faces(JAW, np.eye(4), "vise")
+    held = side_contacts(faces, hull, np.eye(4), 0.15, flats=part_flats(part))
+    assert len(held) == 1
+    np.testing.assert_allclose(held[0].flat_obj, [-1.0, 0.0, 0.0], atol=1e-9)    # its side facing the jaw
+    assert held[0].turn_sigma_rad == pytest.approx((np.radians(FLUSH_SIGMA_DEG),) * 2)
+    np.testing.assert_allclose(side_turns(np.eye(3), held), [0.0, 0.0], atol=1e-12)
+    sigma = np.radians(FLUSH_SIGMA_DEG)
+    for euler, expect in (({"c_deg": 0.1}, (np.radians(0.1) / sigma, 0.0)),      # turned about the normal
+                          ({"b_deg": 0.1}, (0.0, np.radians(0.1) / sigma))):     # tipped about the jaw's y
+        R = pose_from_xyz_euler(0.0, 0.0, 0.0, **euler)[:3, :3]
+        np.testing.assert_allclose(np.abs(side_turns(R, held)), expect, atol=1e-3)
+    # turned 3 deg at the start: that side is not against the jaw (only its corner touches)
+    T3 = pose_from_xyz_euler(0.0, 0.0, 0.0, c_deg=3.0)
+    T3[0, 3] -= (hull @ T3[:3, :3].T)[:, 0].min()          # its corner on the jaw's face
+    turned = side_contacts(faces, hull, T3, 0.15, flats=part_flats(part))
+    assert len(turned) == 1 and turned[0].flat_obj is None and len(side_turns(np.eye(3), turned)) == 0
+    # a round boss has no flat side: held by its line, free to turn
+    boss = trimesh.creation.cylinder(radius=15.0, height=30.0, sections=64,
+                                     transform=make_pose(None, (15.3, 0.0, 90.0)))
+    on_boss = side_contacts(faces, np.asarray(boss.convex_hull.vertices), np.eye(4), 0.15, flats=part_flats(boss))
+    assert len(on_boss) == 1 and on_boss[0].flat_obj is None
+
+
+def test_the_fixtures_own_turn_widens_the_flush_sigma():
+    cov = np.zeros((6, 6))
+    cov[5, 5] = np.radians(0.1) ** 2         # the jaw turned about the table normal by 0.1 deg (1 sigma)
+    part = _box((0.0, -30.0, 75.0), (50.0, 30.0, 105.0))
+    faces = fixture_faces(JAW, np.eye(4), "vise", cov)
+    held = side_contacts(faces, np.asarray(part.convex_hull.vertices), np.eye(4), 0.15, flats=part_flats(part))
+    assert held[0].turn_sigma_rad == pytest.approx((np.radians(np.hypot(FLUSH_SIGMA_DEG, 0.1)),
+                                                    np.radians(FLUSH_SIGMA_DEG)))
 
 
 def test_the_fixtures_own_pose_uncertainty_widens_the_contact():
