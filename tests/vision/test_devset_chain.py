@@ -161,8 +161,8 @@ def test_a_part_whose_top_is_over_the_sensors_top_is_fitted_without_the_edges_be
     off, its height now told by the side faces alone (a sigma of 2 mm along the line of sight, no
     longer matched to the 20 mm parallel). The shop's parallels are declared, as its library declares
     them; without, its height is not told at all (3-4 mm off either way, and refused). Held flush
-    against its located jaws since the twentieth stop: 0.40 mm, and turned as the jaws are located
-    (0.07 deg, within a quarter of its sigma)."""
+    against its located jaws since the twentieth stop: 0.40 mm, and turned 0.07 deg (a quarter of its
+    sigma)."""
     res, obj, err = _run("setup_006", riser_heights_mm=SHOP_PARALLELS)
     assert res.ok, res.reason
     assert np.linalg.norm(err[:3]) < 0.5 and np.nanmax(np.abs(err[3:])) < 0.1, err
