@@ -22,7 +22,7 @@ import trimesh
 
 from app.geometry.model_edges import PreparedModel
 from app.geometry.transforms import make_pose, transform_points
-from app.vision.object_pose.clamping import Face
+from app.vision.object_pose.clamping import Face, along_face
 from app.vision.object_pose.edge_image import EdgeImage
 from app.vision.object_pose.planar_fit import planar_fit, sample_subset
 from app.vision.object_pose.search import Hyp, _image_scorer, _spread_picks, edge_faces_of
@@ -44,12 +44,6 @@ MIN_SIDE_AREA_MM2 = 20.0
 LONE_MIN_Z_MM = 5.0
 
 
-def _along(a: Face) -> np.ndarray:
-    """The horizontal unit direction along face ``a`` (``z x n``)."""
-    u = np.cross([0.0, 0.0, 1.0], a.n)
-    return u / max(np.linalg.norm(u), 1e-12)
-
-
 def _shared_extent(a: Face, b: Face, u: np.ndarray) -> tuple[float, float, float, float]:
     """What faces ``a`` and ``b`` share seen across the gap: (lo_u, hi_u) along ``u`` and (lo_z,
     hi_z) in height, mm (empty where lo > hi)."""
@@ -69,7 +63,7 @@ def jaw_openings(faces: tuple[Face, ...] | list[Face], max_gap_mm: float) -> lis
             gap = -(a.d + b.d)              # a: n.x >= d_a, b: -n.x >= d_b (n = a.n = -b.n)
             if not 0.0 < gap <= max_gap_mm:
                 continue
-            lo_u, hi_u, lo_z, hi_z = _shared_extent(a, b, _along(a))
+            lo_u, hi_u, lo_z, hi_z = _shared_extent(a, b, along_face(a.n))
             if hi_u - lo_u >= MIN_OVERLAP_MM and hi_z - lo_z >= JAW_MIN_HEIGHT_MM:
                 out.append((a, b, float(gap)))
     return out
@@ -101,7 +95,7 @@ def _holds(faces, max_gap_mm: float) -> list[tuple]:
     if not pairs:
         pairs = [(f, f, None) for f in faces
                  if f.pts[:, 2].min() >= LONE_MIN_Z_MM and np.ptp(f.pts[:, 2]) >= JAW_MIN_HEIGHT_MM]
-    return [(a, gap, *_shared_extent(a, b, _along(a))) for a, b, gap in pairs]
+    return [(a, gap, *_shared_extent(a, b, along_face(a.n))) for a, b, gap in pairs]
 
 
 def clamped_poses(model: PreparedModel, hull_obj: np.ndarray, faces, heights_mm, states,
@@ -118,7 +112,7 @@ def clamped_poses(model: PreparedModel, hull_obj: np.ndarray, faces, heights_mm,
         H = transform_points(T_rest, hull_obj)
         stances.append((st, T_rest, H, _sides(H)))
     for a, gap, lo_u, hi_u, lo_z, hi_z in _holds(faces, float(model.diameter_mm)):
-        n, u = a.n, _along(a)
+        n, u = a.n, along_face(a.n)
         phi_n = float(np.arctan2(n[1], n[0]))
         for st, T_rest, H, sides in stances:
             for m in sides:

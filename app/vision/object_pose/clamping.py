@@ -96,10 +96,10 @@ def part_flats(mesh: trimesh.Trimesh, min_area_mm2: float = FLUSH_MIN_AREA_MM2) 
                  np.asarray(areas, float))
 
 
-def _along_face(n: np.ndarray) -> np.ndarray:
-    """The face's horizontal axis: the table normal crossed with its (horizontal) normal, unit."""
+def along_face(n: np.ndarray) -> np.ndarray:
+    """A vertical face's horizontal axis: the table normal crossed with its normal ``n``, unit."""
     u = np.cross([0.0, 0.0, 1.0], n)
-    return u / max(float(np.linalg.norm(u)), 1e-12)
+    return u / max(np.linalg.norm(u), 1e-12)
 
 
 def _faces(mesh: trimesh.Trimesh, T: np.ndarray, name: str, vertical: bool, min_area: float) -> list[Face]:
@@ -131,7 +131,7 @@ def fixture_faces(mesh: trimesh.Trimesh, T_table_fix: np.ndarray, name: str,
         JJ = np.outer(J, J)
         var = float(np.sum(np.where(JJ != 0.0, cov * JJ, 0.0)))
         # the face turns with the fixture: about the table normal and about its own horizontal axis
-        u = _along_face(f.n)
+        u = along_face(f.n)
         turn = (float(cov[5, 5]), float(u @ cov[3:, 3:] @ u))
         if np.isfinite(var):      # a face whose place is not known (NaN) holds nothing
             # (nor flush where its turn is not known: inf)
@@ -142,9 +142,7 @@ def fixture_faces(mesh: trimesh.Trimesh, T_table_fix: np.ndarray, name: str,
 
 def _overlap(a: np.ndarray, b: np.ndarray, n: np.ndarray, tol_mm: float = 0.5) -> bool:
     """Do the two point sets' extents meet when seen along ``n`` (horizontal across, and height)?"""
-    u = np.cross([0.0, 0.0, 1.0], n)
-    u /= max(np.linalg.norm(u), 1e-12)
-    for axis in (u, np.array([0.0, 0.0, 1.0])):
+    for axis in (along_face(n), np.array([0.0, 0.0, 1.0])):
         pa, pb = a @ axis, b @ axis
         if min(pa.max(), pb.max()) - max(pa.min(), pb.min()) < -tol_mm:
             return False
@@ -205,7 +203,7 @@ def side_turns(R_table_obj: np.ndarray, contacts) -> np.ndarray:
         if c.flat_obj is None:
             continue
         w = np.cross(R_table_obj @ c.flat_obj, -c.n)       # takes the side's normal onto -n
-        out += [w[2] / c.turn_sigma_rad[0], float(w @ _along_face(c.n)) / c.turn_sigma_rad[1]]
+        out += [w[2] / c.turn_sigma_rad[0], float(w @ along_face(c.n)) / c.turn_sigma_rad[1]]
     return np.asarray(out, float)
 
 
