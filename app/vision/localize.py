@@ -625,7 +625,8 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
         guided = {} if carrier_pose is None else {
             "start_poses": guide_start_poses(guide, carrier_pose.T_table_obj),
             "start_capture": (GUIDE_CAPTURE_MM, GUIDE_CAPTURE_DEG),
-            "keep_pose": _on_guide(guide, carrier_pose.T_table_obj)}
+            "keep_pose": _on_guide(guide, carrier_pose.T_table_obj),
+            "guide_hold": _guide_hold(guide, carrier_pose)}
         if cand.photo is not None:     # taught from pictures: it rests on the table where it was taught
             pose = locate_photo(photo_view, cand.photo, cand.name, search_xy=photo_xy or table_xy,
                                 min_score=FIXTURE_MIN_SCORE if fixture else min_score, min_margin=min_margin)
@@ -769,6 +770,18 @@ def _carriers_first(fixtures: list[Candidate]) -> list[Candidate]:
 def _on_guide(guide: dict, T_table_carrier: np.ndarray) -> Callable[[np.ndarray], bool]:
     """``T_table_obj -> bool``: the pose is on the guide (within OFF_GUIDE_MM / OFF_GUIDE_DEG)."""
     return lambda T: guide_deviation(guide, T_table_carrier, T).on_guide()
+
+
+def _guide_hold(guide: dict, carrier_pose):
+    """The turn a guided fixture keeps on its located carrier (:func:`.object_pose.clamping.guide_hold`),
+    with the carrier's own turn error (its covariance without the table's, which both share)."""
+    from app.vision.object_pose.clamping import guide_hold
+
+    T_table_carrier = np.asarray(carrier_pose.T_table_obj, float)
+    own = carrier_pose.covariance if carrier_pose.table_covariance is None else \
+        carrier_pose.covariance - carrier_pose.table_covariance
+    R = T_table_carrier[:3, :3] @ np.asarray(guide["T_carrier_obj"], float)[:3, :3]
+    return guide_hold(guide["carrier"], R, T_table_carrier[:3, :3] @ np.asarray(guide["axis"], float), own)
 
 
 def _kept_on_guide(cand: Candidate, pose, guide: dict, T_table_carrier: np.ndarray):

@@ -162,15 +162,17 @@ def test_a_part_whose_top_is_over_the_sensors_top_is_fitted_without_the_edges_be
     longer matched to the 20 mm parallel). The shop's parallels are declared, as its library declares
     them; without, its height is not told at all (3-4 mm off either way, and refused). Held flush
     against its located jaws since the twentieth stop: 0.40 mm, and turned 0.07 deg (a quarter of its
-    sigma)."""
+    sigma). Since the twenty-first its moving jaw keeps its body's turn (it was 0.19 deg off it): the
+    part 0.53 mm off (0.51 of it in height, 0.4 of its sigma there) and turned 0.01 deg; with the edges
+    beside clipped pixels, 0.60 mm and 0.15 deg."""
     res, obj, err = _run("setup_006", riser_heights_mm=SHOP_PARALLELS)
     assert res.ok, res.reason
-    assert np.linalg.norm(err[:3]) < 0.5 and np.nanmax(np.abs(err[3:])) < 0.1, err
+    assert np.linalg.norm(err[:3]) < 0.6 and np.nanmax(np.abs(err[3:])) < 0.05, err
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
     monkeypatch.setattr(refine_module, "near_clipped", lambda clipped, uv, *a, **k: np.zeros(len(uv), bool))
     _, _, err = _run("setup_006", riser_heights_mm=SHOP_PARALLELS)
-    # with them it is off as before (held flush: 0.72 mm and 0.19 deg)
-    assert np.linalg.norm(err[:3]) > 0.7 and np.nanmax(np.abs(err[3:])) > 0.15, err
+    # with them it is turned as before (0.72 mm and 0.19 deg held flush against a jaw turned with it)
+    assert np.nanmax(np.abs(err[3:])) > 0.12, err
 
 
 def test_a_small_part_deep_between_the_jaws_is_found_where_the_jaws_hold_it(monkeypatch):
@@ -280,7 +282,9 @@ def test_vise_found_where_a_coarse_grid_missed_it(scene_id):
 def test_the_moving_jaw_is_found_along_its_guide(scene_id):
     """A plain box: searched anywhere in any rotation it was "ambiguous: two different poses fit almost
     equally well" in both scenes (73 % against 67 %, 80 % against 74 %); searched only along its
-    guide on the located body it is found, on the guide, within half a millimetre."""
+    guide on the located body it is found, on the guide, within half a millimetre. The ways hold its
+    turn (``clamping.guide_hold``): fitted freely it was turned 0.19 and 0.04 deg about the table
+    normal (its body 0.02 and 0.01 deg); held, 0.006 and 0.006 deg. They hold no part (``held_by``)."""
     sc, res, truth = _fixtures(scene_id)
     jaw = next((o for o in res.objects if o["name"] == "vise_jaw"), None)
     assert jaw is not None, res.not_found
@@ -290,6 +294,8 @@ def test_the_moving_jaw_is_found_along_its_guide(scene_id):
     model = next(c for c in sc.fixture_candidates if c.name == "vise_jaw").prepare()
     err = pose_error_6dof(np.asarray(jaw["T_table_obj"]), truth["vise_jaw"], model)
     assert np.linalg.norm(err[:3]) < 0.5 and np.linalg.norm(err[3:]) < 0.3, err
+    assert abs(err[5]) < 0.03, err
+    assert jaw["held_by"] == [], jaw["held_by"]
 
 
 def test_a_jaw_whose_vise_was_not_found_is_not_searched():

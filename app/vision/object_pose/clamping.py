@@ -33,6 +33,11 @@ FLUSH_SIGMA_DEG = 0.05
 #: a part side counts as held flush when at the start it lies within this of the jaw's plane (the
 #: jaws' starts put it there; a side turned further off is not against the face)
 FLUSH_MAX_DEG = 2.0
+#: a guided fixture (a vise's moving jaw in the body's ways) turns on its carrier only by the guide's
+#: play: 1 sigma about the table normal and about the horizontal axis across the guide, on top of
+#: the located carrier's own turn (a ways' play of 0.02-0.05 mm over a 50-100 mm long jaw; set from
+#: that, not fitted)
+GUIDE_SIGMA_DEG = 0.05
 #: a part side is a flat that can be held from this area (mm^2): a pin's or a chamfer's facets are not
 FLUSH_MIN_AREA_MM2 = 100.0
 
@@ -57,7 +62,7 @@ class SideContact:
     within ``sigma_mm``; ``gap_mm`` is how far the part's face was from it before the fit. Where a
     flat side of the part lies against it, ``flat_obj`` is that side's outward normal (obj frame),
     held opposite ``n`` within ``turn_sigma_rad`` (about the table normal, about the face's
-    horizontal axis)."""
+    horizontal axis). A guide's hold (:func:`guide_hold`) holds the turn alone."""
 
     name: str
     n: np.ndarray
@@ -66,6 +71,8 @@ class SideContact:
     gap_mm: float
     flat_obj: np.ndarray | None = None
     turn_sigma_rad: tuple[float, float] = (float("nan"), float("nan"))
+    #: False: the contact holds the turn only (:func:`guide_hold`), not the place along ``n``
+    holds_place: bool = True
 
 
 @dataclass(frozen=True)
@@ -188,10 +195,38 @@ def side_contacts(faces: list[Face], hull_obj: np.ndarray, T_table_obj: np.ndarr
     return list(best.values())
 
 
+def guide_hold(carrier: str, R_table_obj: np.ndarray, axis_table: np.ndarray,
+               carrier_cov: np.ndarray | None, sigma_deg: float = GUIDE_SIGMA_DEG) -> SideContact | None:
+    """The turn a guided fixture keeps on its located carrier, as a contact that holds the turn alone:
+    its rotation ``R_table_obj`` on the guide (the carrier's turned by the guide's ``T_carrier_obj``),
+    held about the table normal and about the horizontal axis across the guide's axis ``axis_table``
+    (unit, table frame) within ``sigma_deg`` and the carrier's own turn (``carrier_cov``: its pose's
+    6x6 over origin mm and rotation vector rad, table axes, without the table's share that both
+    share; None: exact). A vise's moving jaw fitted freely turned up to 0.19 deg off its body (devset
+    setup_006, the body 0.02 deg), and the part held flush against it turned with it. None for a
+    guide that is not horizontal (within 60 deg of the table normal: a slide up an angle plate), whose
+    turn this does not describe."""
+    a = np.asarray(axis_table, float)
+    a = a / max(float(np.linalg.norm(a)), 1e-12)
+    if abs(a[2]) > 0.5:
+        return None
+    n = -a
+    u = along_face(n)
+    cov = np.zeros((6, 6)) if carrier_cov is None else np.asarray(carrier_cov, float)
+    turn_var = (float(cov[5, 5]), float(u @ cov[3:, 3:] @ u))
+    if not all(np.isfinite(v) for v in turn_var):      # the carrier's turn not known: nothing held
+        return None
+    s2 = np.radians(sigma_deg) ** 2
+    return SideContact(name=carrier, n=n, d=0.0, sigma_mm=float("inf"), gap_mm=0.0,
+                       flat_obj=np.asarray(R_table_obj, float).T @ a,
+                       turn_sigma_rad=tuple(float(np.sqrt(s2 + max(v, 0.0))) for v in turn_var),
+                       holds_place=False)
+
+
 def side_gaps(P_table: np.ndarray, contacts) -> np.ndarray:
-    """(gap / sigma) of each contact for the part's hull points ``P_table`` (table frame): its extreme
-    point along the face normal against the face (0 when touching)."""
-    return np.array([(float((P_table @ c.n).min()) - c.d) / c.sigma_mm for c in contacts])
+    """(gap / sigma) of each contact that holds a place for the part's hull points ``P_table`` (table
+    frame): its extreme point along the face normal against the face (0 when touching)."""
+    return np.array([(float((P_table @ c.n).min()) - c.d) / c.sigma_mm for c in contacts if c.holds_place])
 
 
 def side_turns(R_table_obj: np.ndarray, contacts) -> np.ndarray:

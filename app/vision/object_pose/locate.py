@@ -19,7 +19,7 @@ from app.geometry.model_edges import (
 )
 from app.geometry.transforms import check_pose, inv, make_pose, transform_points
 from app.vision.blas_threads import one_blas_thread
-from app.vision.object_pose.clamping import Flats, part_flats, side_contacts
+from app.vision.object_pose.clamping import Flats, SideContact, part_flats, side_contacts
 from app.vision.object_pose.datum import choose_datum
 from app.vision.object_pose.edge_image import (
     EdgeImage,
@@ -64,7 +64,7 @@ from app.vision.object_pose.verify import same_up_to_symmetry, unexplained_edges
 def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options: LocateOptions | None = None,
                   occluder_models=(), known_models=(), known_regions=(), edge_image: EdgeImage | None = None,
                   start_poses=None, start_capture=None, known_heights_mm=None, table_extent_xy=None, clamp_faces=(),
-                  keep_pose=None, table_covariance=None, **option_changes):
+                  keep_pose=None, table_covariance=None, guide_hold=None, **option_changes):
     """Locate one part on the table. Returns :class:`ObjectPose` or :class:`ObjectFailure`.
 
     Parameters
@@ -95,6 +95,8 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
     keep_pose : ``T_table_obj -> bool``: where the object can be at all (a vise's moving jaw on its
         guide); aligned starts and fine fits elsewhere are dropped before they compete (the local
         search around a start slides onto any edges within its reach)
+    guide_hold : a guided fixture's turn on its located carrier (:func:`.clamping.guide_hold`: a vise's
+        moving jaw in the body's ways), held in the final fit as a flat side against a jaw is
     table_covariance : ``(cov, centroid_table_mm[, intrinsics jacobian, intrinsics sigma])`` of the
         table pose (:meth:`app.vision.fiducials.TablePose.frame_error`): its error, and the
         intrinsics', enter the stated sigma (:func:`.uncertainty.table_covariance`); None:
@@ -114,7 +116,7 @@ def locate_object(image, K, dist, T_cam_table, model: PreparedModel, *, options:
                              candidates=tuple(cands), timings_ms=dict(timings))
 
     ctx = _context(image, K, dist, T_cam_table, model, opts, occluder_models, known_models, known_regions,
-                   edge_image, known_heights_mm, timings, tuple(clamp_faces), table_covariance)
+                   edge_image, known_heights_mm, timings, tuple(clamp_faces), table_covariance, guide_hold)
     if isinstance(ctx, tuple):
         return fail(*ctx)
     found = _find(ctx, start_poses, table_extent_xy, start_capture)        # stages 1 and 2
@@ -206,6 +208,7 @@ class LocateContext:
     hull_obj: np.ndarray
     clamp_faces: tuple = ()
     table_cov: tuple | None = None      # (6x6, centroid[, intrinsics jacobian, sigma]), see locate_object
+    guide_hold: SideContact | None = None   # a guided fixture's turn on its carrier, see locate_object
     px_per_mm: float = 1.0
     _sub_fine: np.ndarray | None = field(default=None, repr=False)
     _unexplained: dict = field(default_factory=dict, repr=False)
@@ -323,7 +326,7 @@ class LocateContext:
 
 
 def _context(image, K, dist, T_cam_table, model, opts, occluder_models, known_models, known_regions,
-             edge_image, known_heights_mm, timings, clamp_faces=(), table_cov=None):
+             edge_image, known_heights_mm, timings, clamp_faces=(), table_cov=None, guide_hold=None):
     """The image prepared (edges of known geometry removed) and the call's fixed inputs checked;
     or ``(kind, reason)`` of a failure."""
     K = np.asarray(K, dtype=float)
@@ -348,7 +351,7 @@ def _context(image, K, dist, T_cam_table, model, opts, occluder_models, known_mo
         occluders_cam=tuple((m, T_cam_table @ np.asarray(T, float)) for m, T in occluder_models),
         known_heights_mm=None if known_heights_mm is None else tuple(known_heights_mm), timings=timings,
         min_contrast=max(0.01, 6.0 * eimg.noise_linear), hull_obj=hull_points(model), clamp_faces=clamp_faces,
-        table_cov=table_cov)
+        table_cov=table_cov, guide_hold=guide_hold)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -790,6 +793,8 @@ def _fit6_uncached(ctx: LocateContext, r: Fit, sides: bool, rest_z: float | None
     known = rest_z is not None or ctx.on_known_surface(r.T)
     held = side_contacts(ctx.clamp_faces, ctx.hull_obj, T_rest, o.contact_sigma_mm,
                          flats=ctx.flats if ctx.clamp_faces else None) if sides else []
+    if sides and ctx.guide_hold is not None:
+        held.append(ctx.guide_hold)
     lying_free = known and not held and abs(ctx.lowest_z(T_rest)) < 0.5     # on the table itself (z = 0)
     tilt_deg = o.free_contact_sigma_deg if lying_free else o.contact_sigma_deg
     pr = (T_rest, o.contact_sigma_mm if known else o.riser_sigma_mm, np.radians(tilt_deg), ctx.hull_obj)
@@ -934,7 +939,7 @@ def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, di
         tilt_sigma_deg=tilt_sigma, T_table_obj_6dof=T6,
         unexplained_fraction=ctx.unexplained(T_table_obj),
         supported_edge_px=best.support_px, uncertainty_ok=uncertainty_ok, height_offset_mm=height,
-        held_by=tuple(c.name for c in cf.prior[4]) if len(cf.prior) > 4 and not cf.conflict else (),
+        held_by=tuple(c.name for c in cf.prior[4] if c.holds_place) if len(cf.prior) > 4 and not cf.conflict else (),
         riser_mm=cf.riser_mm,
         margin=float(rv.margin), runner_up_score=float(rv.runner),
         distinctiveness=distinct_drop, covariance=cov_o,

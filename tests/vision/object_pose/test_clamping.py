@@ -11,8 +11,9 @@ import trimesh
 
 from app.geometry.transforms import make_pose
 from app.geometry.transforms import pose_from_xyz_euler
-from app.vision.object_pose.clamping import (FLUSH_SIGMA_DEG, fixture_faces, part_flats, side_contacts,
-                                           side_offsets, side_turns)
+from app.vision.object_pose.clamping import (FLUSH_SIGMA_DEG, GUIDE_SIGMA_DEG, fixture_faces, guide_hold,
+                                           part_flats, side_contacts, side_gaps, side_offsets, side_turns)
+from app.vision.object_pose.uncertainty import prior_offsets
 
 
 def _box(lo, hi) -> trimesh.Trimesh:
@@ -87,6 +88,38 @@ def test_the_fixtures_own_turn_widens_the_flush_sigma():
     held = side_contacts(faces, np.asarray(part.convex_hull.vertices), np.eye(4), 0.15, flats=part_flats(part))
     assert held[0].turn_sigma_rad == pytest.approx((np.radians(np.hypot(FLUSH_SIGMA_DEG, 0.1)),
                                                     np.radians(FLUSH_SIGMA_DEG)))
+
+
+def test_a_guided_fixture_keeps_its_carriers_turn_and_nothing_else():
+    """A vise's moving jaw in the body's ways: held at the turn its guide gives it (the body's, turned
+    by the guide's T_carrier_obj) within the ways' play and the body's own turn, about the table normal
+    and about the horizontal axis across the guide; its place along the guide is left to the image."""
+    R_body = pose_from_xyz_euler(0.0, 0.0, 0.0, c_deg=30.0)[:3, :3]
+    axis = R_body @ np.array([1.0, 0.0, 0.0])                  # the guide's x axis, table frame
+    cov = np.zeros((6, 6))
+    cov[5, 5] = np.radians(0.04) ** 2                          # the body's own yaw, 1 sigma
+    hold = guide_hold("vise_body", R_body, axis, cov)
+    assert hold.name == "vise_body" and not hold.holds_place
+    assert hold.turn_sigma_rad == pytest.approx((np.radians(np.hypot(GUIDE_SIGMA_DEG, 0.04)),
+                                                 np.radians(GUIDE_SIGMA_DEG)))
+    np.testing.assert_allclose(side_turns(R_body, [hold]), [0.0, 0.0], atol=1e-12)
+    for euler, expect in (({"c_deg": 0.1}, (np.radians(0.1) / hold.turn_sigma_rad[0], 0.0)),   # turned on the ways
+                          ({"b_deg": 0.1}, (0.0, np.radians(0.1) / hold.turn_sigma_rad[1]))):  # pitched
+        # turned in the guide's own frame: about the table normal, about the axis across the guide
+        # (its roll about the guide's own axis is the contact prior's tilt, not the guide's)
+        R = R_body @ pose_from_xyz_euler(0.0, 0.0, 0.0, **euler)[:3, :3]
+        np.testing.assert_allclose(np.abs(side_turns(R, [hold])), expect, atol=1e-3)
+    # no gap: wherever the jaw is along (or off) its guide, the hold says nothing of its place
+    hull = np.asarray(_box((0.0, -30.0, 70.0), (55.0, 30.0, 110.0)).vertices)
+    assert len(side_gaps(hull, [hold])) == 0
+    T = make_pose(R_body, (120.0, -40.0, 70.0))
+    rest = make_pose(R_body, (0.0, 0.0, 70.0))
+    off = prior_offsets(T, (rest, 0.15, np.radians(0.3), hull, (hold,)))
+    assert len(off) == 3 + 2 and np.allclose(off[3:], 0.0, atol=1e-12)
+    # a vertical guide (a slide up an angle plate), or a carrier whose turn is not known: nothing held
+    assert guide_hold("plate", np.eye(3), np.array([0.0, 0.0, 1.0]), None) is None
+    cov[5, 5] = np.nan
+    assert guide_hold("vise_body", R_body, axis, cov) is None
 
 
 def test_the_fixtures_own_pose_uncertainty_widens_the_contact():
