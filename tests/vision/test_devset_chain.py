@@ -171,7 +171,7 @@ def test_a_part_whose_top_is_over_the_sensors_top_is_fitted_without_the_edges_be
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
     monkeypatch.setattr(refine_module, "near_clipped", lambda clipped, uv, *a, **k: np.zeros(len(uv), bool))
     _, _, err = _run("setup_006", riser_heights_mm=SHOP_PARALLELS)
-    # with them it is turned as before (0.72 mm and 0.19 deg held flush against a jaw turned with it)
+    # with them it is turned (0.60 mm and 0.15 deg; 0.72 mm and 0.19 deg before its jaw kept the body's turn)
     assert np.nanmax(np.abs(err[3:])) > 0.12, err
 
 
@@ -284,7 +284,7 @@ def test_the_moving_jaw_is_found_along_its_guide(scene_id):
     equally well" in both scenes (73 % against 67 %, 80 % against 74 %); searched only along its
     guide on the located body it is found, on the guide, within half a millimetre. The ways hold its
     turn (``clamping.guide_hold``): fitted freely it was turned 0.19 and 0.04 deg about the table
-    normal (its body 0.02 and 0.01 deg); held, 0.006 and 0.006 deg. They hold no part (``held_by``)."""
+    normal (its body 0.02 and 0.01 deg); held, 0.006 and 0.006 deg. The hold is not in its ``held_by``."""
     sc, res, truth = _fixtures(scene_id)
     jaw = next((o for o in res.objects if o["name"] == "vise_jaw"), None)
     assert jaw is not None, res.not_found
