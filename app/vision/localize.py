@@ -671,8 +671,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
                 seats += derived
                 # a part between its jaws will be held by its faces
                 # (the part and the jaw share the table's error: the face holds by the jaw's own sigma)
-                own = pose.covariance if pose.table_covariance is None else pose.covariance - pose.table_covariance
-                jaw_faces += fixture_faces(cand.mesh, pose.T_table_obj, cand.name, own)
+                jaw_faces += fixture_faces(cand.mesh, pose.T_table_obj, cand.name, _own_covariance(pose))
                 surfaces += (derived if cand.support_surfaces is None
                              else declared_surfaces(cand.support_surfaces, pose.T_table_obj, cand.name))
         _report(cand, pose, (time.perf_counter() - t) * 1e3, located, not_found, done, image, K, dist, table,
@@ -772,16 +771,21 @@ def _on_guide(guide: dict, T_table_carrier: np.ndarray) -> Callable[[np.ndarray]
     return lambda T: guide_deviation(guide, T_table_carrier, T).on_guide()
 
 
+def _own_covariance(pose) -> np.ndarray:
+    """A located fixture's pose covariance without the table's share: what it adds to what it holds
+    or carries, which share the table's error with it."""
+    return pose.covariance if pose.table_covariance is None else pose.covariance - pose.table_covariance
+
+
 def _guide_hold(guide: dict, carrier_pose):
     """The turn a guided fixture keeps on its located carrier (:func:`.object_pose.clamping.guide_hold`),
-    with the carrier's own turn error (its covariance without the table's, which both share)."""
+    with the carrier's own turn error."""
     from app.vision.object_pose.clamping import guide_hold
 
-    T_table_carrier = np.asarray(carrier_pose.T_table_obj, float)
-    own = carrier_pose.covariance if carrier_pose.table_covariance is None else \
-        carrier_pose.covariance - carrier_pose.table_covariance
-    R = T_table_carrier[:3, :3] @ np.asarray(guide["T_carrier_obj"], float)[:3, :3]
-    return guide_hold(guide["carrier"], R, T_table_carrier[:3, :3] @ np.asarray(guide["axis"], float), own)
+    R_table_carrier = np.asarray(carrier_pose.T_table_obj, float)[:3, :3]
+    R = R_table_carrier @ np.asarray(guide["T_carrier_obj"], float)[:3, :3]
+    return guide_hold(guide["carrier"], R, R_table_carrier @ np.asarray(guide["axis"], float),
+                      _own_covariance(carrier_pose))
 
 
 def _kept_on_guide(cand: Candidate, pose, guide: dict, T_table_carrier: np.ndarray):

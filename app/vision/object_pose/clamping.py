@@ -109,6 +109,20 @@ def along_face(n: np.ndarray) -> np.ndarray:
     return u / max(np.linalg.norm(u), 1e-12)
 
 
+def _turn_var(cov: np.ndarray, n: np.ndarray) -> tuple[float, float]:
+    """Variance (rad^2) of a vertical plane's turn (normal ``n``, table frame) when its fixture turns
+    with rotation-vector covariance ``cov[3:, 3:]`` (a 6x6 pose covariance): about the table normal
+    and about the plane's horizontal axis."""
+    u = along_face(n)
+    return float(cov[5, 5]), float(u @ cov[3:, 3:] @ u)
+
+
+def _turn_sigma(sigma_deg: float, turn_var: tuple[float, float]) -> tuple[float, float]:
+    """1 sigma (rad) of a held turn: its own ``sigma_deg`` and the holder's ``turn_var`` (rad^2)."""
+    s2 = np.radians(sigma_deg) ** 2
+    return tuple(float(np.sqrt(s2 + max(v, 0.0))) for v in turn_var)
+
+
 def _faces(mesh: trimesh.Trimesh, T: np.ndarray, name: str, vertical: bool, min_area: float) -> list[Face]:
     out = []
     R = T[:3, :3]
@@ -137,9 +151,7 @@ def fixture_faces(mesh: trimesh.Trimesh, T_table_fix: np.ndarray, name: str,
         J = np.concatenate([f.n, np.cross(f.pts.mean(axis=0) - o, f.n)])
         JJ = np.outer(J, J)
         var = float(np.sum(np.where(JJ != 0.0, cov * JJ, 0.0)))
-        # the face turns with the fixture: about the table normal and about its own horizontal axis
-        u = along_face(f.n)
-        turn = (float(cov[5, 5]), float(u @ cov[3:, 3:] @ u))
+        turn = _turn_var(cov, f.n)        # the face turns with the fixture
         if np.isfinite(var):      # a face whose place is not known (NaN) holds nothing
             # (nor flush where its turn is not known: inf)
             out.append(Face(name=f.name, n=f.n, d=f.d, pts=f.pts, var_mm2=max(var, 0.0),
@@ -187,8 +199,7 @@ def side_contacts(faces: list[Face], hull_obj: np.ndarray, T_table_obj: np.ndarr
                 if against.any():
                     k = int(np.argmax(np.where(against, flats.areas, -1.0)))
                     flat = flats.normals[k]
-                    s2 = np.radians(flush_sigma_deg) ** 2
-                    turn = (float(np.sqrt(s2 + f.turn_var_rad2[0])), float(np.sqrt(s2 + f.turn_var_rad2[1])))
+                    turn = _turn_sigma(flush_sigma_deg, f.turn_var_rad2)
             best[key] = SideContact(name=f.name, n=f.n, d=f.d,
                                     sigma_mm=float(np.sqrt(contact_sigma_mm ** 2 + f.var_mm2)), gap_mm=gap,
                                     flat_obj=flat, turn_sigma_rad=turn)
@@ -210,17 +221,12 @@ def guide_hold(carrier: str, R_table_obj: np.ndarray, axis_table: np.ndarray,
     a = a / max(float(np.linalg.norm(a)), 1e-12)
     if abs(a[2]) > 0.5:
         return None
-    n = -a
-    u = along_face(n)
-    cov = np.zeros((6, 6)) if carrier_cov is None else np.asarray(carrier_cov, float)
-    turn_var = (float(cov[5, 5]), float(u @ cov[3:, 3:] @ u))
+    turn_var = _turn_var(np.zeros((6, 6)) if carrier_cov is None else np.asarray(carrier_cov, float), -a)
     if not all(np.isfinite(v) for v in turn_var):      # the carrier's turn not known: nothing held
         return None
-    s2 = np.radians(sigma_deg) ** 2
-    return SideContact(name=carrier, n=n, d=0.0, sigma_mm=float("inf"), gap_mm=0.0,
+    return SideContact(name=carrier, n=-a, d=0.0, sigma_mm=float("inf"), gap_mm=0.0,
                        flat_obj=np.asarray(R_table_obj, float).T @ a,
-                       turn_sigma_rad=tuple(float(np.sqrt(s2 + max(v, 0.0))) for v in turn_var),
-                       holds_place=False)
+                       turn_sigma_rad=_turn_sigma(sigma_deg, turn_var), holds_place=False)
 
 
 def side_gaps(P_table: np.ndarray, contacts) -> np.ndarray:
