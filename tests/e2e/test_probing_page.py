@@ -20,7 +20,7 @@ import pytest
 from app.geometry.transforms import transform_points
 from app.planning.probing_safety import comment
 from tests.e2e.test_setup_page import PART, browser, page, scene, service, setup_json, wait_for  # noqa: F401
-from tests.support.browser import ARTIFACTS
+from tests.support.browser import ARTIFACTS, upload_photo
 
 pytestmark = pytest.mark.integration
 
@@ -74,8 +74,7 @@ def test_probing_page_as_an_operator(page, service, scene):  # noqa: F811
     # ---- locate the rendered picture and confirm it, on the setup page
     page.goto(f"{service.url}/setup?machine={service.machine_id}")
     page.get_by_test_id("part-select").select_option(label=PART)
-    page.get_by_test_id("upload-input").set_input_files(
-        {"name": "setup.png", "mimeType": "image/png", "buffer": scene["png"]})
+    upload_photo(page, {"name": "setup.png", "mimeType": "image/png", "buffer": scene["png"]})
     page.wait_for_function("() => document.querySelector('#progress').classList.contains('done')"
                            " || document.querySelector('#progress').classList.contains('failed')", timeout=120_000)
     assert "Located" in page.get_by_test_id("status-message").inner_text()

@@ -13,7 +13,7 @@ from app.geometry.rotary_chain import RotaryChain
 from app.geometry.transforms import pose_from_xyz_euler
 from app.store.db import session_scope
 from app.store.models import Setup
-from tests.support.browser import ARTIFACTS, signed_in_page, skip_without_chromium
+from tests.support.browser import ARTIFACTS, signed_in_page, skip_without_chromium, upload_photo
 from tests.support.factories import INTRINSICS, located_setup, make_machine
 from tests.support.live_server import live_server
 
@@ -62,10 +62,10 @@ def test_admin_sets_the_axis_and_the_operator_types_the_angle(tmp_path):
             box = page.get_by_test_id("table-angle-box")
             box.wait_for()
             assert "offsets are for C = 0" in page.get_by_test_id("table-angle-note").inner_text()
-            page.get_by_test_id("upload-input").set_input_files({"name": "c.png", "mimeType": "image/png", "buffer": png})
+            upload_photo(page, {"name": "c.png", "mimeType": "image/png", "buffer": png})
             page.get_by_test_id("status-message").filter(has_text="Type the table angle C").wait_for()
             page.get_by_test_id("table-angle").fill("37.5")
-            page.get_by_test_id("upload-input").set_input_files({"name": "c.png", "mimeType": "image/png", "buffer": png})
+            upload_photo(page, {"name": "c.png", "mimeType": "image/png", "buffer": png})
             page.wait_for_function("() => /Setup \\d+/.test(document.getElementById('setup-id').textContent)")
             with srv.client("admin") as c:
                 latest = c.get("/api/v1/setups", params={"machine_id": m["id"], "limit": 1}).json()[0]

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from tests.support.browser import ARTIFACTS, CHROMIUM, skip_without_chromium
+from tests.support.browser import ARTIFACTS, CHROMIUM, skip_without_chromium, upload_photo
 from tests.support.live_server import live_server
 
 pytestmark = pytest.mark.integration
@@ -191,8 +191,7 @@ def test_every_page_is_linked_from_the_start_page(page, service):
 def test_setup_upload_review_adjust_refine_confirm(page, service, scene, browser):
     page.goto(f"{service.url}/setup?machine={service.machine_id}")
     page.get_by_test_id("part-select").select_option(label=PART)
-    page.get_by_test_id("upload-input").set_input_files(
-        {"name": "setup.png", "mimeType": "image/png", "buffer": scene["png"]})
+    upload_photo(page, {"name": "setup.png", "mimeType": "image/png", "buffer": scene["png"]})
     # progress follows the stages (server-sent events), then the result
     page.wait_for_selector("#stages li", timeout=60_000)
     page.wait_for_function("() => document.querySelector('#progress').classList.contains('done')"
@@ -317,7 +316,7 @@ def test_symmetric_part_asks_which_pose_is_meant(page, service, scene):
     png = cv2.imencode(".png", render_scene(sc, np.random.default_rng(1)).image)[1].tobytes()
     page.goto(f"{service.url}/setup?machine={service.machine_id}")
     page.get_by_test_id("part-select").select_option(label="Plain block 120")
-    page.get_by_test_id("upload-input").set_input_files({"name": "block.png", "mimeType": "image/png", "buffer": png})
+    upload_photo(page, {"name": "block.png", "mimeType": "image/png", "buffer": png})
     page.wait_for_function("() => document.querySelector('#progress').classList.contains('done')"
                            " || document.querySelector('#progress').classList.contains('failed')", timeout=120_000)
     assert "Located" in page.get_by_test_id("status-message").inner_text()
@@ -392,8 +391,7 @@ def test_recognition_shows_how_far_it_is_while_it_runs(page, service, scene):
         new MutationObserver(note).observe(document.querySelector('#progress-panel'),
             {subtree: true, childList: true, characterData: true, attributes: true});
     }""")
-    page.get_by_test_id("upload-input").set_input_files(
-        {"name": "setup.png", "mimeType": "image/png", "buffer": scene["png"]})
+    upload_photo(page, {"name": "setup.png", "mimeType": "image/png", "buffer": scene["png"]})
     page.wait_for_function("() => /[?&]setup=\\d+/.test(location.search)", timeout=60_000)
     setup_id = int(urllib.parse.parse_qs(urllib.parse.urlparse(page.url).query)["setup"][0])
     while_running = []
@@ -428,8 +426,8 @@ def test_failure_is_shown_as_a_reason_with_what_to_do(page, service):
     blank = np.clip(rng.normal(90, 12, (H, W)), 0, 255).astype(np.uint8)   # no table, no markers
     page.goto(f"{service.url}/setup?machine={service.machine_id}")
     page.get_by_test_id("part-select").select_option(label=PART)
-    page.get_by_test_id("upload-input").set_input_files(
-        {"name": "empty.png", "mimeType": "image/png", "buffer": cv2.imencode(".png", blank)[1].tobytes()})
+    upload_photo(page, {"name": "empty.png", "mimeType": "image/png",
+                        "buffer": cv2.imencode(".png", blank)[1].tobytes()})
     page.wait_for_function("() => document.querySelector('#progress').classList.contains('failed')", timeout=60_000)
     text = page.get_by_test_id("status-message").inner_text()
     assert "markers not found" in text.lower(), text                      # what went wrong

@@ -35,3 +35,12 @@ def signed_in_page(srv, role: str = "operator", viewport: tuple[int, int] = (128
             yield page, errors
         finally:
             browser.close()
+
+
+def upload_photo(page, files) -> None:
+    """Put a photo into the setup page's upload input once an operator could: the input stays disabled
+    until the machines are listed, and Playwright sets files on a disabled input all the same (the page
+    then says "Choose the machine first" and nothing is started). ``files`` is what
+    ``set_input_files`` takes."""
+    page.wait_for_selector("[data-testid=upload-input]:enabled", timeout=30_000)
+    page.get_by_test_id("upload-input").set_input_files(files)
