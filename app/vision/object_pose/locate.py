@@ -796,7 +796,8 @@ def _fit6_uncached(ctx: LocateContext, r: Fit, sides: bool, rest_z: float | None
     if sides and ctx.guide_hold is not None:
         held.append(ctx.guide_hold)
     lying_free = known and not held and abs(ctx.lowest_z(T_rest)) < 0.5     # on the table itself (z = 0)
-    tilt_deg = o.free_contact_sigma_deg if lying_free else o.contact_sigma_deg
+    pressed = any(c.holds_place for c in held)
+    tilt_deg = o.held_contact_sigma_deg if pressed else o.free_contact_sigma_deg if lying_free else o.contact_sigma_deg
     pr = (T_rest, o.contact_sigma_mm if known else o.riser_sigma_mm, np.radians(tilt_deg), ctx.hull_obj)
     if held:
         pr = pr + (tuple(held),)
@@ -804,7 +805,7 @@ def _fit6_uncached(ctx: LocateContext, r: Fit, sides: bool, rest_z: float | None
     # side); the flat fits that rank the starts keep them, for where most of a part's edges are clipped
     # (one stop over-exposed) they are what tells one place from another
     T6, info6 = ctx.refine(T_rest, FREE_6DOF, (2.0, 2.0), round_axis_table=ra, prior=pr, reweight=o.final_reweight,
-                           drop_clipped=True)
+                           drop_clipped=True, prior_noise_scale=o.sigma_scale)
     conflict = "sol" in info6 and np.max(np.abs(prior_offsets(T6, pr))) > MAX_PRIOR_SIGMAS
     if conflict and held:      # the image does not let it touch the face: judge it without
         return _fit6(ctx, r, sides=False, rest_z=rest_z)

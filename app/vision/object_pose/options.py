@@ -11,7 +11,7 @@ from dataclasses import dataclass, fields, replace
 
 from app.vision.object_pose.search import COARSE_STEP_MAX_MM, SEARCH_THREADS
 from app.vision.object_pose.uncertainty import (CONTACT_SIGMA_DEG, CONTACT_SIGMA_MM, FREE_CONTACT_SIGMA_DEG,
-                                                RISER_SIGMA_MM, SIGMA_SCALE)
+                                                HELD_CONTACT_SIGMA_DEG, RISER_SIGMA_MM, SIGMA_SCALE)
 
 
 @dataclass(frozen=True)
@@ -53,7 +53,8 @@ class LocateOptions:
     contact_sigma_mm, contact_sigma_deg : how far a part on a known surface may sit above it or tilt
         (a chip, a burr, a strap pressing one side); ``riser_sigma_mm`` : the prior on the height
         above a riser of unknown height; ``free_contact_sigma_deg`` : the tilt of a part lying on the
-        table itself, held by no jaw face
+        table itself, held by no jaw face; ``held_contact_sigma_deg`` : the tilt of a part a jaw
+        face presses onto its seat
     riser_heights_mm : heights of the shop's declared risers (its parallels' tops above their base, mm):
         a part over a riser of unknown height is tested against them (``locate._declared_riser``)
     final_reweight : Cauchy re-solves of the final 6-DoF fit per round (``refine_pose``'s
@@ -86,6 +87,7 @@ class LocateOptions:
     contact_sigma_mm: float = CONTACT_SIGMA_MM
     contact_sigma_deg: float = CONTACT_SIGMA_DEG
     free_contact_sigma_deg: float = FREE_CONTACT_SIGMA_DEG
+    held_contact_sigma_deg: float = HELD_CONTACT_SIGMA_DEG
     riser_sigma_mm: float = RISER_SIGMA_MM
     final_reweight: int = 3
     riser_heights_mm: tuple = ()

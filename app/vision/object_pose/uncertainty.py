@@ -38,6 +38,9 @@ CONTACT_SIGMA_DEG = 0.3
 # 0.5 deg for them alone its table parts go from 0.110 / 0.310 to 0.088 / 0.263 mm (median / p95),
 # the vise parts unchanged; the same 0.5 deg for every part had cost the vise parts.
 FREE_CONTACT_SIGMA_DEG = 0.5
+# A part pressed by a jaw onto its seat or parallels sits flat to within a few hundredths of a mm
+# over its length (0.02-0.1 mm over 50 mm seated by hand, 0.02-0.1 deg): set from that, not fitted.
+HELD_CONTACT_SIGMA_DEG = 0.1
 RISER_SIGMA_MM = 15.0
 # A freely fitted height within this of a known surface is taken as resting on it.
 SNAP_MM = 3.0
@@ -53,8 +56,9 @@ RISER_MAX_SIGMA_MM = 1.0
 MAX_PRIOR_SIGMAS = 4.0
 
 
-# Edge noise (px) in whose units the contact prior's residuals are expressed: one prior residual
-# weighs as much as one edge sample of that noise (the sigma calibration absorbs the rest).
+# Edge noise (px) in whose units the contact prior's residuals are expressed while a fit converges:
+# one prior residual weighs as much as one edge sample of that noise. The final re-solves weigh it
+# against the noise their own edges show (:func:`prior_noise_px`), at most this.
 PRIOR_PX = 0.5
 
 # Cauchy weight's scale in robust sigmas of the edge residuals (95 % efficiency under Gaussian noise,
@@ -62,6 +66,16 @@ PRIOR_PX = 0.5
 # (a noiseless rendering) must not have their samples weighed by numerical noise.
 CAUCHY_C = 2.385
 CAUCHY_MIN_PX = 0.1
+
+
+def prior_noise_px(res_px: np.ndarray, weights: np.ndarray, data_scale: float) -> float:
+    """The edge noise (px) a prior residual is weighed against: the weighted RMS of the edge residuals
+    (as :func:`covariance` takes it) times ``data_scale``, between :data:`CAUCHY_MIN_PX` and
+    :data:`PRIOR_PX` (a prior never counts for more than with the assumed noise, nor is it weighed
+    against numerical noise)."""
+    r, w = np.asarray(res_px, float), np.asarray(weights, float)
+    s = float(np.sqrt(np.sum(w * r ** 2) / max(float(np.sum(w)), 1.0))) if len(r) else PRIOR_PX
+    return float(np.clip(s * data_scale, CAUCHY_MIN_PX, PRIOR_PX))
 
 
 def cauchy_weights(res_px: np.ndarray) -> np.ndarray:

@@ -7,7 +7,22 @@ import pytest
 import trimesh
 
 from app.geometry.transforms import inv, pose_from_xyz_euler
-from app.vision.object_pose.uncertainty import prior_offsets
+from app.vision.object_pose.uncertainty import CAUCHY_MIN_PX, PRIOR_PX, prior_noise_px, prior_offsets
+
+
+def test_the_prior_is_weighed_against_the_edge_noise_the_fit_shows():
+    """The contact prior's residuals are in pixels of edge noise: the noise of this fit's own edges
+    (weighted RMS, times the covariance's scale), so that the fit and its covariance give the prior
+    the same weight; never more than the assumed PRIOR_PX, never less than numerical noise."""
+    rng = np.random.default_rng(3)
+    r = rng.normal(0.0, 0.1, 4000)
+    assert prior_noise_px(r, np.ones_like(r), 1.8) == pytest.approx(0.18, rel=0.05)
+    # a sample caught on another edge, down-weighted by the Cauchy weights, does not count
+    caught = np.append(r, 25.0)
+    assert prior_noise_px(caught, np.append(np.ones_like(r), 0.0), 1.8) == pytest.approx(0.18, rel=0.05)
+    assert prior_noise_px(rng.normal(0.0, 2.0, 4000), np.ones(4000), 1.8) == PRIOR_PX
+    assert prior_noise_px(np.zeros(50), np.ones(50), 1.8) == CAUCHY_MIN_PX
+    assert prior_noise_px(np.zeros(0), np.zeros(0), 1.8) == PRIOR_PX
 
 
 def test_contact_prior_holds_the_lowest_point_not_the_centre():
