@@ -191,7 +191,8 @@ def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, 
         # the samples along one model edge share its errors: the data carry about as much information
         # as that many edges, not samples; the prior is weighed against them accordingly
         n_cl = len(np.unique(model.sample_edge[es.index[good]]))
-        w_prior = PRIOR_PX * np.sqrt(max(good.sum() / max(n_cl, 1), 1.0))
+        per_edge = float(np.sqrt(max(good.sum() / max(n_cl, 1), 1.0)))
+        w_prior = PRIOR_PX * per_edge
         pin = None
         if round_axis_table is not None and len(free) == 6:
             pin = round_axis_table
@@ -243,7 +244,7 @@ def refine_pose(eimg: EdgeImage, model: PreparedModel, T_table_obj: np.ndarray, 
             w = cauchy_weights(rd)
             kw = {"sw": np.sqrt(w)}
             if prior is not None and prior_noise_scale is not None:
-                kw["w_prior"] = w_prior / PRIOR_PX * prior_noise_px(rd, w, prior_noise_scale)
+                kw["w_prior"] = per_edge * prior_noise_px(rd, w, prior_noise_scale)
             sol = least_squares(fun, sol.x, jac=jac, kwargs=kw, method="trf", x_scale=xs, max_nfev=60)
         T = perturb(T0, c_table, full(sol.x))
         info = {"sol": sol, "X": X, "n": n, "target": target, "T0": T0, "c_table": c_table,
