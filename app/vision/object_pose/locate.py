@@ -874,10 +874,9 @@ def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, di
     tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
     flags = []
     tilt_sigma = float("nan")
-    cov6_full = None
-    if "sol" in info6:
-        cov6_full = covariance(info6, K, dist, ctx.T_cam_table, data_scale=o.sigma_scale)
-        tilt_sigma = float(np.degrees(np.sqrt(max(cov6_full[0][3, 3] + cov6_full[0][4, 4], 0.0))))
+    if "sol" in info6:        # a decision: at the fit's own (wide) scale
+        cov6 = covariance(info6, K, dist, ctx.T_cam_table, data_scale=o.sigma_scale)[0]
+        tilt_sigma = float(np.degrees(np.sqrt(max(cov6[3, 3] + cov6[4, 4], 0.0))))
     if "sol" in info6 and tilt > o.max_tilt_deg and tilt > 3.0 * tilt_sigma:
         flags.append("tilt")          # the free fit says: not lying flat
     # The pose returned is the 6-DoF fit with the contact prior (maximum a-posteriori): where the
@@ -895,8 +894,12 @@ def _result(ctx: LocateContext, cf: ContactFit, rv: Rivals, sym_scores: list, di
     S_up = max([np.eye(4)] + [s.S for s in model.symmetries if s.exact],
                key=lambda S: round(float((T_table_obj @ S)[2, 2]), 6))
     T_table_obj, T6 = T_table_obj @ S_up, T6 @ S_up
-    # the 6-DoF posterior is already at hand unless the flat fit stands in for it
-    cov, inl, rms = cov6_full if info is info6 else covariance(info, K, dist, ctx.T_cam_table, data_scale=o.sigma_scale)
+    # the stated covariance: of the fit as made (its prior weighed at sigma_scale), the image's noise
+    # at its calibrated scale (uncertainty.STATED_SIGMA_SCALE); the frame's error moves the fit as made
+    cov, inl, rms = covariance(info, K, dist, ctx.T_cam_table, data_scale=o.sigma_scale,
+                               stated_scale=o.stated_sigma_scale)
+    if info is info6:           # the tilt's sigma as stated (the flag above was decided at the fit's scale)
+        tilt_sigma = float(np.degrees(np.sqrt(max(cov[3, 3] + cov[4, 4], 0.0))))
     if cf.conflict:
         cov = cov + unknown_height_covariance(T_table_obj, model, ctx.T_cam_table, o.riser_sigma_mm)
     cov_table, cov_k = np.zeros((6, 6)), np.zeros((6, 6))

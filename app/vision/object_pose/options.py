@@ -11,7 +11,8 @@ from dataclasses import dataclass, fields, replace
 
 from app.vision.object_pose.search import COARSE_STEP_MAX_MM, SEARCH_THREADS
 from app.vision.object_pose.uncertainty import (CONTACT_SIGMA_DEG, CONTACT_SIGMA_MM, FREE_CONTACT_SIGMA_DEG,
-                                                HELD_CONTACT_SIGMA_DEG, RISER_SIGMA_MM, SIGMA_SCALE)
+                                                HELD_CONTACT_SIGMA_DEG, RISER_SIGMA_MM, SIGMA_SCALE,
+                                                STATED_SIGMA_SCALE)
 
 
 @dataclass(frozen=True)
@@ -48,7 +49,10 @@ class LocateOptions:
     max_edges : image edge pixels cast onto the search planes (a random subset beyond)
     search_threads : resting states searched at the same time (``search.SEARCH_THREADS``); the
         result does not depend on it
-    sigma_scale : factor on the image's share of the covariance (calibrated on held-out scenes)
+    sigma_scale : factor on the image's share of the covariance in the fit's own decisions (the
+        contact prior's weight, a declared riser's match, the tilt flag): deliberately wide
+    stated_sigma_scale : that factor in the covariance and sigma the result states (and the gate
+        judges): calibrated on held-out scenes
     seed : of the edge subset (results are reproducible)
     contact_sigma_mm, contact_sigma_deg : how far a part on a known surface may sit above it or tilt
         (a chip, a burr, a strap pressing one side); ``riser_sigma_mm`` : the prior on the height
@@ -83,6 +87,7 @@ class LocateOptions:
     max_edges: int = 60000
     search_threads: int = SEARCH_THREADS
     sigma_scale: float = SIGMA_SCALE
+    stated_sigma_scale: float = STATED_SIGMA_SCALE
     seed: int = 0
     contact_sigma_mm: float = CONTACT_SIGMA_MM
     contact_sigma_deg: float = CONTACT_SIGMA_DEG

@@ -16,6 +16,7 @@ from app.synth.table import box_table_layout, box_table_mesh
 import app.vision.object_pose.locate as locate_module
 from app.vision.localize import marker_labels_table
 from app.vision.object_pose.search import centre_extent
+from app.vision.object_pose.uncertainty import STATED_SIGMA_SCALE
 from app.vision.object_pose import (ObjectFailure, ObjectPose, draw_object, locate_object, mask_known_edges,
                                     mask_table_regions, prepare_image, recognise)
 
@@ -97,6 +98,24 @@ def test_locates_the_clamped_bracket(models, clamped, monkeypatch):
     d = json.loads(json.dumps(res.to_dict()))
     assert d["ok"] is True and np.asarray(d["T_table_obj"]).shape == (4, 4)
     assert set(res.timings_ms) >= {"edges", "search", "planar_fit", "refine", "verify", "total"}
+
+
+def test_the_stated_sigma_is_calibrated_apart_from_the_fit(models, clamped):
+    """The scale of the stated covariance (calibrated on held-out scenes) changes what the result says
+    of its uncertainty, not where the fit puts the part nor what it decides on the way."""
+    scene, r, _, _ = clamped
+    a = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma)
+    b = locate_object(r.image, K, DIST, scene.T_cam_table, models["bracket_140"], gamma=scene.gamma,
+                      stated_sigma_scale=2.0 * STATED_SIGMA_SCALE)
+    assert isinstance(a, ObjectPose) and isinstance(b, ObjectPose)
+    np.testing.assert_allclose(b.T_table_obj, a.T_table_obj, atol=1e-9)
+    assert [f for f in a.flags if f != "uncertainty"] == [f for f in b.flags if f != "uncertainty"]
+    # every sigma grows with the image's noise, none by more than it; the turn about z comes from the
+    # image alone, the height is held by the contact prior as well (physical: it does not scale)
+    ratio = {k: b.sigma[k] / a.sigma[k] for k in a.sigma}
+    assert all(1.0 < v <= 2.0 + 1e-9 for v in ratio.values()), ratio
+    assert ratio["rz_deg"] > 1.8 and ratio["z_mm"] < ratio["rz_deg"] - 0.2, ratio
+    assert a.tilt_sigma_deg < b.tilt_sigma_deg <= 2.0 * a.tilt_sigma_deg + 1e-12     # stated as the rest
 
 
 def test_known_occluder_hides_edges_and_keeps_the_fit(models, clamped):
