@@ -41,6 +41,8 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from app.vision.intrinsics import DEFAULT_SIGMA_C_PX, DEFAULT_SIGMA_F_REL
+
 # ---------------------------------------------------------------------------------------------
 # Board description
 # ---------------------------------------------------------------------------------------------
@@ -523,12 +525,26 @@ class CalibrationResult:
         return sum(v.used for v in self.views)
 
     def intrinsics(self) -> dict[str, Any]:
-        """The DESIGN.md intrinsics format: {"width", "height", "K", "dist"}."""
+        """The DESIGN.md intrinsics format: {"width", "height", "K", "dist", "sigma"}.
+
+        ``sigma`` ({"f_rel", "c_px"}, 1 sigma) says how well this calibration fixed K: OpenCV's own
+        estimate (the larger of fx and fy relative, of cx and cy in px), never below
+        :data:`~app.vision.intrinsics.DEFAULT_INTRINSICS_SIGMA`. OpenCV's estimate assumes independent
+        corner errors and is too small for a good calibration (left01-14: 0.08 % in f, where two
+        careful calibrations of those images differ by 0.5 %), so the default is its floor; for a poor
+        one it is the larger (4 ChArUco views: 3.4 % in f, 11 px in cy) and every located object's
+        sigma then says so."""
+        f = np.array([self.K[0, 0], self.K[1, 1]], dtype=np.float64)
+        f_rel = float(np.max(np.array([self.std_px.get("fx", 0.0), self.std_px.get("fy", 0.0)]) / f))
+        c_px = float(max(self.std_px.get("cx", 0.0), self.std_px.get("cy", 0.0)))
         return {
             "width": self.width,
             "height": self.height,
             "K": [[float(x) for x in row] for row in self.K],
             "dist": [float(x) for x in self.dist],
+            # within the DESIGN format's bounds (a degenerate calibration's estimate may exceed them)
+            "sigma": {"f_rel": float(np.clip(max(f_rel, DEFAULT_SIGMA_F_REL), 0.0, 0.2)),
+                      "c_px": float(np.clip(max(c_px, DEFAULT_SIGMA_C_PX), 0.0, 500.0))},
         }
 
     def to_dict(self) -> dict[str, Any]:

@@ -36,11 +36,18 @@ $("grab").addEventListener("click", async () => {
     drawShots();
   } catch (e) { say("#msg", `${e.message}. Upload pictures instead if this camera cannot be triggered from here.`, "bad"); }
 });
+// how well the calibration fixed the focal length and the image centre (1 sigma); every part located
+// through this camera carries it in its own sigma
+function sigmaText(sigma) {
+  if (!sigma) return "";
+  return ` Focal length known to ±${fmt(100 * sigma.f_rel, 2)} %, image centre to ±${fmt(sigma.c_px, 1)} px.`;
+}
 function showRun(run) {
   lastRun = run;
   const r = run.result || {};
   $("summary").textContent = run.ok
-    ? `Calibration #${run.id}: reprojection error ${fmt(run.rms_px, 3)} px from ${r.n_views_used} pictures.${run.accepted ? " In use." : ""}`
+    ? `Calibration #${run.id}: reprojection error ${fmt(run.rms_px, 3)} px from ${r.n_views_used} pictures.` +
+      sigmaText((r.intrinsics || {}).sigma) + (run.accepted ? " In use." : "")
     : `Calibration #${run.id} failed: ${run.reason}`;
   $("summary").className = run.ok ? "pass" : "fail";
   const cov = (r.coverage && r.coverage.cells_reached) || [];

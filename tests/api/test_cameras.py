@@ -127,6 +127,8 @@ def test_calibration_reproduces_opencv_reference(client, external_data):
     assert cal["rms_px"] < 0.25 < ref["rms_px"]
     r = client.post(f"/api/v1/cameras/{cam['id']}/calibrations/{cal['id']}/accept")
     assert r.status_code == 200 and r.json()["intrinsics"]["K"] == cal["result"]["intrinsics"]["K"]
+    # the calibration states how well it fixed K (13 good views: the default, OpenCV's estimate is below it)
+    assert r.json()["intrinsics"]["sigma"] == cal["result"]["intrinsics"]["sigma"] == {"f_rel": 0.004, "c_px": 3.0}
     listed = client.get(f"/api/v1/cameras/{cam['id']}/calibrations").json()
     assert [c["id"] for c in listed] == [ref["id"], cal["id"]] and listed[1]["accepted"]
 

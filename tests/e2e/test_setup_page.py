@@ -466,7 +466,8 @@ def test_camera_calibration_wizard(browser, service, external_data):
     pg.get_by_test_id("calibrate-button").click()
     pg.wait_for_function("() => document.querySelectorAll('[data-testid=per-image-errors] tr').length === 13",
                          timeout=90_000)
-    assert "reprojection error" in pg.locator("#summary").inner_text()
+    summary = pg.locator("#summary").inner_text()
+    assert "reprojection error" in summary and "Focal length known to ±0.40 %, image centre to ±3.0 px" in summary
     assert pg.locator("[data-testid=coverage] div").count() == 9
     pg.get_by_test_id("accept-button").click()
     pg.wait_for_function("() => document.querySelector('#cam-state').textContent.includes('calibrated for 640')",

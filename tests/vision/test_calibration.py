@@ -25,7 +25,7 @@ from app.vision.calibration import (
     draw_detection,
     measure_coverage,
 )
-from app.vision.intrinsics import parse_intrinsics
+from app.vision.intrinsics import DEFAULT_SIGMA_C_PX, DEFAULT_SIGMA_F_REL, parse_intrinsics
 
 CHESS_9x6 = BoardSpec(kind="chessboard", inner_corners=(9, 6), square_mm=25.0)
 CHARUCO_5x7 = BoardSpec(kind="charuco", squares=(5, 7), square_mm=40.0, marker_mm=20.0, dictionary="DICT_6X6_250")
@@ -147,7 +147,11 @@ def test_left_default_window_fixes_left02(left_default, left_sample_settings, le
     assert r.coverage.corners_missing == ()
     assert r.coverage.grid_fraction == 1.0
     intr = r.intrinsics()
-    assert set(intr) == {"width", "height", "K", "dist"}
+    assert set(intr) == {"width", "height", "K", "dist", "sigma"}
+    # OpenCV's own estimate (0.08 % in f, 0.5 px in c) is below what two careful calibrations of these
+    # images differ by (0.5 %): the stated sigma is the default, its floor
+    assert r.std_px["fy"] / r.K[1, 1] < DEFAULT_SIGMA_F_REL and max(r.std_px["cx"], r.std_px["cy"]) < DEFAULT_SIGMA_C_PX
+    assert intr["sigma"] == {"f_rel": DEFAULT_SIGMA_F_REL, "c_px": DEFAULT_SIGMA_C_PX}
     parsed = parse_intrinsics(intr)  # the project's validator for the DESIGN format accepts it
     assert parsed.K_array[0, 0] == pytest.approx(r.K[0, 0]) and parsed.dist_array.shape == (5,)
 
@@ -182,6 +186,11 @@ def test_charuco_matches_tutorial_reference(charuco_result, external_data):
     assert r.K[1, 2] == pytest.approx(ref["K"][1, 2], abs=3.0)
     assert r.rms_px == pytest.approx(ref["rms"], abs=0.02)
     assert r.std_px["fx"] > 5.0  # the uncertainty is reported, and it is large for 4 views
+    # and the intrinsics state it, so that every part located through this camera carries it
+    sigma = r.intrinsics()["sigma"]
+    assert sigma["f_rel"] == pytest.approx(max(r.std_px["fx"] / r.K[0, 0], r.std_px["fy"] / r.K[1, 1]))
+    assert sigma["f_rel"] > 0.03 and sigma["c_px"] == pytest.approx(r.std_px["cy"]) and sigma["c_px"] > 10
+    assert parse_intrinsics(r.intrinsics()).sigma_tuple == (sigma["f_rel"], sigma["c_px"], sigma["c_px"])
 
 
 def test_charuco_coverage_warning(charuco_result):
