@@ -412,7 +412,8 @@ def without_intrinsics(rows: list[dict]) -> str:
     for half in (0, 1, None):
         rat, nees = [], []
         for r in rows:
-            if not r["located"] or r.get("cov6") is None or (half is not None and r["half"] != half):
+            if (not r["located"] or r.get("cov6") is None or r.get("cov6_intrinsics") is None
+                    or (half is not None and r["half"] != half)):
                 continue
             e = np.asarray(r["err"], float)
             C = np.asarray(r["cov6"], float) - np.asarray(r["cov6_intrinsics"], float)
