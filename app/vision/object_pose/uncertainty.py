@@ -15,10 +15,10 @@ from app.vision.object_pose.clamping import side_gaps, side_turns
 from app.vision.object_pose.pose_params import perturb
 
 # Factor on the image's share of the covariance in the fit's own decisions: the contact prior's
-# weight (:func:`prior_noise_px`), a declared riser's match, the contact conflict, the tilt flag. Set
-# at 2026-11-26 (the devset's first half, 13 located scenes: the 68th percentile of |error| / sigma
-# was 1.38 at the former 1.3, so 1.8) and kept since, because those decisions' thresholds were fitted
-# in its units; the fits have since come 2-3x closer to the truth, so it is wide.
+# weight (:func:`prior_noise_px`), a declared riser's match, the tilt flag. Set at 2026-11-26 (the
+# devset's first half, 13 located scenes: the 68th percentile of |error| / sigma was 1.38 at the
+# former 1.3, so 1.8) and kept since, because those decisions' thresholds were fitted in its units;
+# the fits have since come 2-3x closer to the truth, so it is wide.
 SIGMA_SCALE = 1.8
 # The same factor in the covariance the result states and the export gate judges (the fit as made,
 # its prior weighed at SIGMA_SCALE: :func:`covariance`'s ``stated_scale``). Fitted on the devset's
