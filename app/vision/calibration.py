@@ -490,6 +490,11 @@ class ViewReport:
         }
 
 
+def _bounded(v: float, floor: float, ceiling: float) -> float:
+    """``v`` between ``floor`` and ``ceiling``; ``ceiling`` where it is not finite."""
+    return float(np.clip(v, floor, ceiling)) if np.isfinite(v) else float(ceiling)
+
+
 @dataclass(frozen=True, eq=False)
 class CalibrationResult:
     """Intrinsics from a successful calibration.
@@ -542,9 +547,10 @@ class CalibrationResult:
             "height": self.height,
             "K": [[float(x) for x in row] for row in self.K],
             "dist": [float(x) for x in self.dist],
-            # within the DESIGN format's bounds (a degenerate calibration's estimate may exceed them)
-            "sigma": {"f_rel": float(np.clip(max(f_rel, DEFAULT_SIGMA_F_REL), 0.0, 0.2)),
-                      "c_px": float(np.clip(max(c_px, DEFAULT_SIGMA_C_PX), 0.0, 500.0))},
+            # within the DESIGN format's bounds; an estimate OpenCV could not make (a degenerate
+            # calibration: not finite) is taken at those bounds, as unknown
+            "sigma": {"f_rel": _bounded(f_rel, DEFAULT_SIGMA_F_REL, 0.2),
+                      "c_px": _bounded(c_px, DEFAULT_SIGMA_C_PX, 500.0)},
         }
 
     def to_dict(self) -> dict[str, Any]:

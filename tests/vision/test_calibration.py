@@ -156,6 +156,17 @@ def test_left_default_window_fixes_left02(left_default, left_sample_settings, le
     assert parsed.K_array[0, 0] == pytest.approx(r.K[0, 0]) and parsed.dist_array.shape == (5,)
 
 
+def test_a_sigma_opencv_could_not_estimate_is_stated_as_unknown(left_default):
+    """A degenerate calibration's estimate (not finite) is stated at the format's bounds, never as the
+    default: nothing says the intrinsics are known that well."""
+    from dataclasses import replace
+
+    nan = float("nan")
+    intr = replace(left_default, std_px={"fx": nan, "fy": nan, "cx": nan, "cy": nan}).intrinsics()
+    assert intr["sigma"] == {"f_rel": 0.2, "c_px": 500.0}
+    assert parse_intrinsics(intr).sigma_tuple == (0.2, 500.0, 500.0)
+
+
 def test_result_dict_is_json_ready(left_default):
     import json
 
