@@ -541,7 +541,7 @@ class CalibrationResult:
         sigma then says so."""
         f = np.array([self.K[0, 0], self.K[1, 1]], dtype=np.float64)
         f_rel = float(np.max(np.array([self.std_px.get("fx", 0.0), self.std_px.get("fy", 0.0)]) / f))
-        c_px = float(max(self.std_px.get("cx", 0.0), self.std_px.get("cy", 0.0)))
+        c_px = float(np.max(np.array([self.std_px.get("cx", 0.0), self.std_px.get("cy", 0.0)])))  # NaN stays
         return {
             "width": self.width,
             "height": self.height,

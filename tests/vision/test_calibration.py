@@ -165,6 +165,8 @@ def test_a_sigma_opencv_could_not_estimate_is_stated_as_unknown(left_default):
     intr = replace(left_default, std_px={"fx": nan, "fy": nan, "cx": nan, "cy": nan}).intrinsics()
     assert intr["sigma"] == {"f_rel": 0.2, "c_px": 500.0}
     assert parse_intrinsics(intr).sigma_tuple == (0.2, 500.0, 500.0)
+    one = replace(left_default, std_px={**left_default.std_px, "cy": nan}).intrinsics()   # one of them is enough
+    assert one["sigma"] == {"f_rel": DEFAULT_SIGMA_F_REL, "c_px": 500.0}
 
 
 def test_result_dict_is_json_ready(left_default):
