@@ -342,6 +342,19 @@ def _synth_cached(entry: dict):
     return out
 
 
+# the error and sigma components, in the rows' order (x, y, z mm; rx, ry, rz deg)
+AXES = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
+
+
+def _nees_per_dof(err: np.ndarray, C: np.ndarray, ok: np.ndarray) -> float | None:
+    """The 6-DoF error (mm, deg) against its covariance ``C`` (mm, rad) over the axes ``ok``: the
+    chi-square per degree of freedom (expected 1); None where fewer than 3 axes are known."""
+    if ok.sum() < 3:
+        return None
+    e = err[ok] * np.where(np.arange(6)[ok] >= 3, np.pi / 180, 1.0)
+    return float(e @ np.linalg.pinv(C[np.ix_(ok, ok)]) @ e) / ok.sum()
+
+
 def _summary(rows: list[dict]) -> dict:
     n = len(rows)
     elig = [r for r in rows if r["markers_seen"] >= 2 and r["visible_fraction"] >= 0.5]
@@ -351,7 +364,7 @@ def _summary(rows: list[dict]) -> dict:
     good = [r for r in loc if r not in wrong]
     pos = np.array([np.linalg.norm(r["err"][:3]) for r in good])
     rot = np.array([np.nanmax(np.abs(r["err"][3:])) if np.any(np.isfinite(r["err"][3:])) else 0.0 for r in good])
-    keys = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
+    keys = AXES
     ratios = []
     for r in loc:
         for k, e in zip(keys, r["err"]):
@@ -366,10 +379,9 @@ def _summary(rows: list[dict]) -> dict:
         if r.get("cov6"):
             C = np.asarray(r["cov6"], float)
             e = np.asarray(r["err"], float)
-            ok = np.isfinite(e) & np.isfinite(np.diag(C))
-            if ok.sum() >= 3:
-                e = e[ok] * np.where(np.arange(6)[ok] >= 3, np.pi / 180, 1.0)
-                nees.append(float(e @ np.linalg.pinv(C[np.ix_(ok, ok)]) @ e) / ok.sum())
+            v = _nees_per_dof(e, C, np.isfinite(e) & np.isfinite(np.diag(C)))
+            if v is not None:
+                nees.append(v)
     return {"scenes": n, "eligible": len(elig), "located": len(loc),
             "located_eligible": sum(r["located"] for r in elig), "wrong": len(wrong), "wrong_pass": len(wrong_pass),
             "crashes": sum(1 for r in rows if r["crash"]),
@@ -384,7 +396,7 @@ def _summary(rows: list[dict]) -> dict:
 
 def per_axis_coverage(rows: list[dict]) -> str:
     """Share of the located results whose error is within 1 and 3 stated sigma, per axis."""
-    keys = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
+    keys = AXES
     loc = [r for r in rows if r["located"]]
     cells = []
     for i, k in enumerate(keys):
@@ -417,14 +429,13 @@ def without_intrinsics(rows: list[dict]) -> str:
                 continue
             e = np.asarray(r["err"], float)
             C = np.asarray(r["cov6"], float) - np.asarray(r["cov6_intrinsics"], float)
-            s_all = np.array([np.nan if r["sigma"].get(k) is None else r["sigma"][k] for k in
-                              ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")], float)
+            s_all = np.array([np.nan if r["sigma"].get(k) is None else r["sigma"][k] for k in AXES], float)
             ok = np.isfinite(e) & np.isfinite(s_all)
             s = np.sqrt(np.maximum(np.diag(C) * _VAR_TO_ERR, 1e-18))
             rat += list(np.abs(e[ok]) / s[ok])
-            if ok.sum() >= 3:
-                ee = e[ok] / np.sqrt(_VAR_TO_ERR[ok])
-                nees.append(float(ee @ np.linalg.pinv(C[np.ix_(ok, ok)]) @ ee) / ok.sum())
+            v = _nees_per_dof(e, C, ok)
+            if v is not None:
+                nees.append(v)
         rat = np.asarray(rat)
         hl = {0: "000-019", 1: "020-039", None: "both"}[half]
         if len(rat):
@@ -484,7 +495,7 @@ def two_view(rows: list[dict]) -> str:
     z (mm) and rx, ry, rz (deg) against the combined stated sigma (agree: every axis within 2)."""
     from scipy.spatial.transform import Rotation
 
-    keys = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
+    keys = AXES
     lines = ["| pair | mode | both located | difference x, y, z mm / rx, ry, rz deg | in combined sigma | agree (2 sigma) |",
              "|---|---|---|---|---|---|"]
     for p in sorted({r["pair"] for r in rows if r.get("pair") is not None}):
