@@ -30,7 +30,7 @@ from app.vision.object_pose.edge_image import (
 from app.vision.object_pose.clamped_starts import clamped_starts
 from app.vision.object_pose.options import LocateOptions
 from app.vision.object_pose.planar_fit import sample_subset
-from app.vision.object_pose.pose_params import FREE_6DOF, perturb3
+from app.vision.object_pose.pose_params import FREE_6DOF, flat_at, perturb3
 from app.vision.object_pose.refine import edge_support, refine_pose
 from app.vision.object_pose.results import ObjectFailure, ObjectPose
 from app.vision.object_pose.search import (
@@ -774,23 +774,27 @@ class ContactFit:
     riser_mm: float | None = None
 
 
-def _fit6(ctx: LocateContext, r: Fit, sides: bool = True, rest_z: float | None = None) -> ContactFit:
+def _fit6(ctx: LocateContext, r: Fit, sides: bool = True, rest_z: float | None = None,
+          start: np.ndarray | None = None) -> ContactFit:
     """The 6-DoF fit of flat fit ``r`` with its contact prior: on a known surface (or, given
     ``rest_z``, with its lowest point on that height: a declared riser) within the contact's sigma,
     else over a riser of unknown height; held by the jaw faces it touches unless ``sides`` is False.
+    ``start``: a flat pose (``T_table_obj``, lying in ``r``'s stance) to start from instead of ``r.T``.
     Fitted once per call and arguments (:func:`_rivals` and :func:`_contact_fit` both ask for the
     best's; the cached result holds ``r``, so its ``id`` stays unique)."""
-    key = (id(r), sides, rest_z)
+    key = (id(r), sides, rest_z, None if start is None else start.tobytes())
     if key not in ctx._fit6:
-        ctx._fit6[key] = _fit6_uncached(ctx, r, sides, rest_z)
+        ctx._fit6[key] = _fit6_uncached(ctx, r, sides, rest_z, start)
     return ctx._fit6[key]
 
 
-def _fit6_uncached(ctx: LocateContext, r: Fit, sides: bool, rest_z: float | None) -> ContactFit:
+def _fit6_uncached(ctx: LocateContext, r: Fit, sides: bool, rest_z: float | None,
+                   start: np.ndarray | None = None) -> ContactFit:
     o, model = ctx.opts, ctx.model
-    ra = None if model.continuous_axis_obj is None else r.T[:3, :3] @ model.continuous_axis_obj
-    T_rest = r.T if rest_z is None else make_pose(None, [0.0, 0.0, rest_z - ctx.lowest_z(r.T)]) @ r.T
-    known = rest_z is not None or ctx.on_known_surface(r.T)
+    T0 = r.T if start is None else start
+    ra = None if model.continuous_axis_obj is None else T0[:3, :3] @ model.continuous_axis_obj
+    T_rest = T0 if rest_z is None else make_pose(None, [0.0, 0.0, rest_z - ctx.lowest_z(T0)]) @ T0
+    known = rest_z is not None or ctx.on_known_surface(T0)
     held = side_contacts(ctx.clamp_faces, ctx.hull_obj, T_rest, o.contact_sigma_mm,
                          flats=ctx.flats if ctx.clamp_faces else None) if sides else []
     if sides and ctx.guide_hold is not None:
@@ -808,7 +812,7 @@ def _fit6_uncached(ctx: LocateContext, r: Fit, sides: bool, rest_z: float | None
                            drop_clipped=True, prior_noise_scale=o.sigma_scale)
     conflict = "sol" in info6 and np.max(np.abs(prior_offsets(T6, pr))) > MAX_PRIOR_SIGMAS
     if conflict and held:      # the image does not let it touch the face: judge it without
-        return _fit6(ctx, r, sides=False, rest_z=rest_z)
+        return _fit6(ctx, r, sides=False, rest_z=rest_z, start=start)
     return ContactFit(best=r, T6=T6, info6=info6, prior=pr, conflict=bool(conflict))
 
 
@@ -857,7 +861,11 @@ def _declared_riser(ctx: LocateContext, cf: ContactFit) -> ContactFit:
     order = np.argsort(m)
     if m[order[0]] > RISER_MATCH_SIGMAS or (len(m) > 1 and m[order[1]] < RISER_APART_SIGMAS):
         return cf
-    on = _fit6(ctx, cf.best, rest_z=float(z[order[0]]))
+    # refitted from where the free fit put the part, not from its flat start: that start can be a
+    # reading on another top that the free fit slid down the line of sight (devset setup_022, one stop
+    # over-exposed: the start on the 25 mm top, the free fit at 20.5 mm and 0.7 mm off; refitted on the
+    # 20 mm top from the start, 8.8 mm off)
+    on = _fit6(ctx, cf.best, rest_z=float(z[order[0]]), start=flat_at(cf.best.T, cf.T6, ctx.model.center_obj))
     if "sol" not in on.info6 or on.conflict:
         return cf
     return replace(on, riser_mm=float(heights[float(z[order[0]])]))

@@ -68,6 +68,18 @@ def perturb3(T_table_obj: np.ndarray, c_table: np.ndarray, q: np.ndarray) -> np.
     return perturb(T_table_obj, c_table, np.array([q[0], q[1], 0.0, 0.0, 0.0, q[2]]))
 
 
+def flat_at(T_flat: np.ndarray, T_table_obj: np.ndarray, c_obj: np.ndarray) -> np.ndarray:
+    """``T_flat`` (a part lying flat, ``T_table_obj``) turned about the table normal and moved in the
+    table plane so that its point ``c_obj`` (obj frame, mm) lies over that point at ``T_table_obj`` and
+    it faces the same way; its height and its stance stay ``T_flat``'s. Where a 6-DoF fit put a part,
+    as a flat start."""
+    turn = Rotation.from_matrix(T_table_obj[:3, :3] @ T_flat[:3, :3].T).as_rotvec()[2]
+    R = Rotation.from_rotvec([0.0, 0.0, turn]).as_matrix() @ T_flat[:3, :3]
+    t = T_flat[:3, 3].copy()
+    t[:2] = (T_table_obj[:3, :3] @ c_obj + T_table_obj[:3, 3])[:2] - (R @ c_obj)[:2]
+    return make_pose(R, t)
+
+
 FREE_6DOF = (0, 1, 2, 3, 4, 5)
 FREE_REST = (0, 1, 2, 5)      # x, y, z, rotation about the table normal: part lying flat
 

@@ -52,11 +52,15 @@ SNAP_MM = 3.0
 # A part over a riser of unknown height stands on one of the shop's declared risers (its parallels,
 # ``LocateOptions.riser_heights_mm``) when its lowest point's fitted height is within
 # RISER_MATCH_SIGMAS of that riser's top, every other declared top is at least RISER_APART_SIGMAS
-# away, and that sigma is at most RISER_MAX_SIGMA_MM (an undeclared parallel 1 mm from a declared
-# one is then at least 1 sigma off, and two declared heights 4 mm apart can still be told apart).
+# away, and that sigma is at most RISER_MAX_SIGMA_MM. The sigma is the decision scale's
+# (SIGMA_SCALE), about 2.6 times the stated one: 3 of it are about 8 calibrated sigmas, and 1.5 mm
+# about 0.6 mm as stated. Fitted on the devset's first half (4 sigmas and 1 mm before): its parts on
+# parallels whose heights named their own declared top but at 3.4 sigma from the next (setup_009, on
+# the 27.06 mm parallel between 25 and 30) or with a sigma of 1.2 mm (006, 017) were left at the
+# image's height, 017 1.8 mm off.
 RISER_MATCH_SIGMAS = 2.0
-RISER_APART_SIGMAS = 4.0
-RISER_MAX_SIGMA_MM = 1.0
+RISER_APART_SIGMAS = 3.0
+RISER_MAX_SIGMA_MM = 1.5
 # A 6-DoF fit further than this many prior sigmas from its resting contact is not believed.
 MAX_PRIOR_SIGMAS = 4.0
 

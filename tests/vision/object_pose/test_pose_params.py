@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from app.vision.object_pose.pose_params import rotvec_matrix
+from app.geometry.transforms import make_pose
+from app.vision.object_pose.pose_params import flat_at, rotvec_matrix
 
 
 def test_rotvec_matrix_is_scipys_rotation_bit_for_bit():
@@ -42,3 +43,20 @@ def test_the_point_jacobian_is_the_derivative_of_perturb():
     w, dw = np.array([0.3, -0.2, 0.5]), np.array([1e-6, 2e-6, -1e-6])
     R_next = Rotation.from_rotvec(left_jacobian(w) @ dw) * Rotation.from_rotvec(w)
     np.testing.assert_allclose(R_next.as_matrix(), Rotation.from_rotvec(w + dw).as_matrix(), atol=1e-11)
+
+
+def test_flat_at_moves_a_flat_pose_to_where_a_6dof_fit_put_the_part():
+    """A flat start 6 mm off and turned 2 deg from a slightly tilted 6-DoF pose, 5 mm lower: moved and
+    turned in the table plane, its height and stance kept, its centre over the 6-DoF pose's."""
+    stance = Rotation.from_euler("x", 90, degrees=True).as_matrix()        # lying on its side
+    c = np.array([10.0, -4.0, 7.0])
+    T_flat = make_pose(Rotation.from_euler("z", 30, degrees=True).as_matrix() @ stance, [100.0, 50.0, 25.0])
+    R6 = (Rotation.from_euler("xyz", [0.3, -0.2, 32.0], degrees=True).as_matrix() @ stance)
+    T6 = make_pose(R6, [103.0, 55.0, 20.5])
+    T = flat_at(T_flat, T6, c)
+    np.testing.assert_allclose((T[:3, :3] @ c + T[:3, 3])[:2], (T6[:3, :3] @ c + T6[:3, 3])[:2], atol=1e-9)
+    assert T[2, 3] == T_flat[2, 3]
+    # still flat in its stance: only turned about the table normal, by the 6-DoF pose's 2 deg
+    turn = Rotation.from_matrix(T[:3, :3] @ T_flat[:3, :3].T).as_rotvec()
+    np.testing.assert_allclose(turn[:2], 0.0, atol=1e-12)
+    assert abs(np.degrees(turn[2]) - 2.0) < 0.02
