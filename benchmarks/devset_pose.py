@@ -87,7 +87,7 @@ def scenes(family: str = "setup") -> list[dict]:
 # on pictures rougher than the devset's; deterministic per scene)
 PERTURB = ""
 PERTURBATIONS = ("jpeg60", "blur", "resample", "linear", "noise", "dark", "blur_noise", "dark_noise", "calib",
-                 "chips", "layout", "calib_dist", "bright")
+                 "chips", "layout", "calib_dist", "bright", "markers2", "markers3")
 # ``layout``: the markers as a shop places them, told as designed: each one off its layout position by
 # N(0, LAYOUT_MM) per axis in the table plane and turned by N(0, LAYOUT_DEG), its printed size off by
 # N(0, LAYOUT_SCALE) (a printer's scaling); the engine is told the layout, the image shows them as placed
@@ -103,6 +103,11 @@ CHIPS_N = 1500
 # "Calibration on real image sets": 0.5 % and 1.0 % between our corner window and OpenCV's sample).
 CALIB_F_REL = 0.004
 CALIB_C_PX = 3.0
+
+
+# ``markers2`` / ``markers3``: only the 2 or 3 markers nearest the workpiece (in the image) are in the
+# layout the engine is told; the others are painted over where nothing hides them (hide_markers), as
+# a camera that sees a corner of the table shows only a few
 
 
 # --placement: the markers' placement sigma the told layout declares (None: it declares none)
@@ -160,6 +165,51 @@ def told_intrinsics(K, kind: str, seed: int):
 
 
 GAMMA = 2.2     # the devset's encoding gamma (every scene's ``sensor.gamma``)
+
+
+def hide_markers(image, gt: dict, layout: dict, keep: int):
+    """A table that shows only a few of its markers: the ``keep`` visible markers nearest the workpiece
+    (image distance to its bounding box's centre) are left; every other marker plate that nothing hides
+    is painted over with the median grey of a ring just outside it. A plate partly hidden (by the vise,
+    a part) stays, since painting its footprint would paint over what hides it; the caller leaves it
+    out of the layout the engine is told. Returns (image, ids of the markers left)."""
+    import cv2
+
+    cam = gt["camera"]
+    K, dist = np.asarray(cam["K"], float), np.asarray(cam["dist"], float).ravel()
+    T = np.asarray(gt["T_cam_table"], float)
+    rvec, tvec = cv2.Rodrigues(T[:3, :3])[0], T[:3, 3]
+    wp = next(o for o in gt["objects"] if o["kind"] == "workpiece")
+    centre = np.asarray(wp["bbox_centre_px"], float)
+    visible = [m for m in gt["markers"] if m["id"] in gt["visible_marker_ids"]]
+    kept = sorted(visible, key=lambda m: np.linalg.norm(np.mean(m["corners_px"], axis=0) - centre))[:keep]
+    kept_ids = {m["id"] for m in kept}
+    out = image.copy()
+    h, w = out.shape[:2]
+    unhidden = {m["id"] for m in gt["markers"] if m.get("visible_fraction", 0.0) >= 0.98}
+    for lm in layout["markers"]:
+        if lm["id"] in kept_ids or lm["id"] not in unhidden:
+            continue
+        half = float(lm.get("plate_half_size_mm", 0.7 * lm["size_mm"]))
+        sq = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
+        Tm = np.asarray(lm["T_table_marker"], float)
+        # the plate's top and bottom outline (its sides show from a low camera)
+        pts = [Tm[:3, :3] @ np.array([x, y, z]) + Tm[:3, 3] for x, y in sq for z in (-Tm[2, 3], 0.0)]
+        px, _ = cv2.projectPoints(np.asarray(pts), rvec, tvec, K, dist)
+        px = px.reshape(-1, 2)
+        if not np.all(np.isfinite(px)) or (px[:, 0].max() < 0 or px[:, 1].max() < 0 or px[:, 0].min() >= w
+                                            or px[:, 1].min() >= h):
+            continue
+        hull = cv2.convexHull(np.round(px).astype(np.int32))
+        mask = np.zeros((h, w), np.uint8)
+        cv2.fillConvexPoly(mask, hull, 255)
+        mask = cv2.dilate(mask, np.ones((7, 7), np.uint8))
+        ring = cv2.dilate(mask, np.ones((15, 15), np.uint8)) & ~mask
+        if not ring.any():
+            continue
+        grey = np.median(out[ring > 0], axis=0)
+        out[mask > 0] = np.round(grey).astype(out.dtype)
+    return out, sorted(kept_ids)
 
 
 def perturbed(image, kind: str, seed: int):
@@ -227,10 +277,17 @@ def run_scene(entry: dict, method: str) -> dict:
     else:
         sc = devset_scene(DEVSET, entry)
         image = cv2.imread(str(DEVSET / entry["image"]), cv2.IMREAD_UNCHANGED)
-    if PERTURB:
-        image = perturbed(image, PERTURB, seed=int(entry.get("index", 0)))
     K_told = told_intrinsics(sc.K, PERTURB, seed=int(entry.get("index", 0)))
     layout_told = told_layout(sc.layout, PERTURB, seed=int(entry.get("index", 0)))
+    markers_seen = len(getattr(sc, "gt", {}).get("visible_marker_ids", ()))
+    if PERTURB.startswith("markers"):
+        if entry.get("source") == "synth":
+            raise ValueError(f"--perturb {PERTURB} needs the devset's marker corners; the synth family has none")
+        image, kept = hide_markers(image, sc.gt, sc.layout, keep=int(PERTURB[len("markers"):]))
+        markers_seen = len(kept)
+        layout_told = {**layout_told, "markers": [m for m in layout_told["markers"] if m["id"] in kept]}
+    elif PERTURB:
+        image = perturbed(image, PERTURB, seed=int(entry.get("index", 0)))
     wp = sc.workpiece
     mesh = wp["mesh_obj"] if "mesh_obj" in wp else trimesh.load(DEVSET / wp["mesh"], force="mesh")
     cands = [Candidate(wp["name"], mesh, kind="workpiece")]
@@ -264,7 +321,7 @@ def run_scene(entry: dict, method: str) -> dict:
     row = {"scene": entry["scene_id"], "mode": entry["fixture_mode"], "workpiece": entry["workpiece"],
            "half": 0 if entry["index"] < 20 else 1, "pair": entry.get("pair"), "ms": ms, "cpu_ms": cpu_ms,
            "prep_ms": prep_ms, "threads": kw.get("search_threads", 1),
-           "markers_seen": len(sc.gt["visible_marker_ids"]),
+           "markers_seen": markers_seen,
            "visible_fraction": float(wp["visible_fraction"]), "crash": err,
            "gamma": (res.table or {}).get("gamma") if res is not None else None}
     obj = None if res is None else next((o for o in res.objects if o["kind"] == "workpiece"), None)
