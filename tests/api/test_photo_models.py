@@ -53,7 +53,8 @@ def test_teach_from_pictures_then_locate_a_repeat_placement(client) -> None:
     derr = np.degrees(np.arctan2(T[1, 0], T[0, 0]) - np.arctan2(truth[1, 0], truth[0, 0]))
     assert err < 0.2 and abs((derr + 180) % 360 - 180) < 0.05, (err, derr)
     assert obj["uncertainty_pass"], obj["uncertainty_reason"]
-    assert obj["sigma"]["x_mm"] < 0.1 and obj["sigma"]["rz_deg"] < 0.05
+    # two markers in view: the error their sides share is in the table's sigma (0.076 -> 0.102 mm in x)
+    assert obj["sigma"]["x_mm"] < 0.15 and obj["sigma"]["rz_deg"] < 0.05
     # the sigma carries the table pose's error (the markers' covariance) and the edge bias
     parts = obj["photo"]["cov_parts"]
     assert np.sqrt(parts["table"][0][0]) > 0.003 and parts["edge_bias_mm2"] > 0.05
