@@ -279,7 +279,7 @@ def run_scene(entry: dict, method: str) -> dict:
         image = cv2.imread(str(DEVSET / entry["image"]), cv2.IMREAD_UNCHANGED)
     K_told = told_intrinsics(sc.K, PERTURB, seed=int(entry.get("index", 0)))
     layout_told = told_layout(sc.layout, PERTURB, seed=int(entry.get("index", 0)))
-    markers_seen = len(getattr(sc, "gt", {}).get("visible_marker_ids", ()))
+    markers_seen = len(sc.gt["visible_marker_ids"])
     if PERTURB.startswith("markers"):
         if entry.get("source") == "synth":
             raise ValueError(f"--perturb {PERTURB} needs the devset's marker corners; the synth family has none")

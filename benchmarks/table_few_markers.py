@@ -35,6 +35,7 @@ def fits(sizes: tuple[int, ...]) -> list[dict]:
     term, the side Jacobian, the centroid and the workpiece's position (table mm)."""
     import cv2
 
+    from app.geometry.transforms import inv, transform_points
     from app.synth.devset import devset_scene
     from app.vision import fiducials
 
@@ -54,20 +55,24 @@ def fits(sizes: tuple[int, ...]) -> list[dict]:
                     out.append({**row, "failed": getattr(tp, "reason", "a corner fit")})
                     continue
                 S = tp.side_jacobian
+                part = np.asarray(sc.workpiece["T_table_object"], float)[:3, 3]
+                # the workpiece's place as this table frame reads it, against the truth's (mm)
+                moved = transform_points(inv(T_true) @ tp.T_cam_table, part[None])[0] - part
+                # with 2-3 markers no jackknife floor follows the side term: it comes off exactly
                 out.append({**row, "err": fiducials._frame_step(T_true, tp.T_cam_table, tp.centroid_table_mm),
                             "cov": tp.covariance - fiducials.SIDE_OFFSET_PX ** 2 * S @ S.T, "S": S,
-                            "centroid": tp.centroid_table_mm,
-                            "part": np.asarray(sc.workpiece["T_table_object"], float)[:3, 3]})
+                            "centroid": tp.centroid_table_mm, "part": part, "moved": moved})
         print(entry["scene_id"], len(out), file=sys.stderr, flush=True)
     return out
 
 
-def at_part(row: dict) -> np.ndarray:
-    """(3, 6): the table pose's small motion (rotation rad about the centroid, shift mm) to the motion
-    of the workpiece's position (mm, table axes)."""
-    d = row["part"] - row["centroid"]
-    skew = np.array([[0, -d[2], d[1]], [d[2], 0, -d[0]], [-d[1], d[0], 0]])
-    return np.hstack([-skew, np.eye(3)])
+def at_part(row: dict, cov: np.ndarray) -> np.ndarray:
+    """(3, 3): the table pose's covariance (rotation rad about the centroid, shift mm) moved to the
+    workpiece's position (mm, table axes)."""
+    from app.vision.object_pose.uncertainty import covariance_at
+
+    shift_first = [3, 4, 5, 0, 1, 2]          # covariance_at takes (shift, rotation)
+    return covariance_at(cov[np.ix_(shift_first, shift_first)], row["centroid"], row["part"])[:3, :3]
 
 
 def report(rows: list[dict], offsets: list[float]) -> str:
@@ -85,8 +90,7 @@ def report(rows: list[dict], offsets: list[float]) -> str:
                 z, worst, nees = [], [], []
                 for r in sel:
                     C = r["cov"] + s * s * r["S"] @ r["S"].T
-                    J = at_part(r)
-                    zp = np.abs(J @ r["err"]) / np.sqrt(np.diag(J @ C @ J.T))
+                    zp = np.abs(r["moved"]) / np.sqrt(np.diag(at_part(r, C)))
                     z.append(zp)
                     worst.append(zp.max())
                     nees.append(float(r["err"] @ np.linalg.solve(C, r["err"])) / 6)
@@ -103,6 +107,11 @@ def main(argv=None) -> int:
     ap.add_argument("--offsets", default="0,0.05,0.1,0.2")
     ap.add_argument("--out", default="var/table_few_markers.md")
     a = ap.parse_args(argv)
+    from app.vision.fiducials import MIN_JACKKNIFE_MARKERS
+
+    if any(int(v) >= MIN_JACKKNIFE_MARKERS for v in a.sizes.split(",")):
+        ap.error(f"--sizes: fewer than {MIN_JACKKNIFE_MARKERS} markers (with more, the jackknife's floor "
+                 "follows the side term and it cannot be taken off again)")
     rows = fits(tuple(int(v) for v in a.sizes.split(",")))
     text = report(rows, [float(v) for v in a.offsets.split(",")])
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)

@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from app.vision.intrinsics import DEFAULT_SIGMA_C_PX, DEFAULT_SIGMA_F_REL
+from app.vision.intrinsics import DEFAULT_SIGMA_C_PX, DEFAULT_SIGMA_F_REL, MAX_SIGMA_C_PX, MAX_SIGMA_F_REL
 
 # ---------------------------------------------------------------------------------------------
 # Board description
@@ -549,8 +549,8 @@ class CalibrationResult:
             "dist": [float(x) for x in self.dist],
             # within the DESIGN format's bounds; an estimate OpenCV could not make (a degenerate
             # calibration: not finite) is taken at those bounds, as unknown
-            "sigma": {"f_rel": _bounded(f_rel, DEFAULT_SIGMA_F_REL, 0.2),
-                      "c_px": _bounded(c_px, DEFAULT_SIGMA_C_PX, 500.0)},
+            "sigma": {"f_rel": _bounded(f_rel, DEFAULT_SIGMA_F_REL, MAX_SIGMA_F_REL),
+                      "c_px": _bounded(c_px, DEFAULT_SIGMA_C_PX, MAX_SIGMA_C_PX)},
         }
 
     def to_dict(self) -> dict[str, Any]:

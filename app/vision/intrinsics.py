@@ -18,12 +18,17 @@ from numpy.typing import ArrayLike
 from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 
+# the largest sigma the format takes: a calibration whose estimate is not finite states these (unknown)
+MAX_SIGMA_F_REL = 0.2
+MAX_SIGMA_C_PX = 500.0
+
+
 class IntrinsicsSigma(BaseModel):
     """How well the intrinsics are known (1 sigma): ``f_rel`` the focal length relative (0.004 = 0.4 %),
     ``c_px`` the principal point per axis, px. Absent: :data:`DEFAULT_INTRINSICS_SIGMA`."""
 
-    f_rel: float = Field(ge=0.0, le=0.2, examples=[0.002])
-    c_px: float = Field(ge=0.0, le=500.0, examples=[2.0])
+    f_rel: float = Field(ge=0.0, le=MAX_SIGMA_F_REL, examples=[0.002])
+    c_px: float = Field(ge=0.0, le=MAX_SIGMA_C_PX, examples=[2.0])
 
 
 class Intrinsics(BaseModel):

@@ -415,6 +415,7 @@ def test_two_markers_state_the_sides_shared_error():
 
     from app.synth.devset import devset_scene
     from app.vision.fiducials import _frame_step
+    from app.vision.object_pose.uncertainty import covariance_at
 
     root = Path(__file__).resolve().parents[3] / "shared" / "data" / "devset"
     if not (root / "manifest.json").exists():
@@ -429,6 +430,8 @@ def test_two_markers_state_the_sides_shared_error():
     e6 = _frame_step(np.asarray(sc.gt["T_cam_table"]), res.T_cam_table, res.centroid_table_mm)
     assert np.degrees(np.abs(e6[:3]).max()) > 0.3
     assert np.all(np.abs(e6) <= 4.0 * np.sqrt(np.diag(res.covariance))), (e6, np.sqrt(np.diag(res.covariance)))
-    d = np.asarray(sc.workpiece["T_table_object"])[:3, 3] - res.centroid_table_mm
-    J = np.hstack([-np.array([[0, -d[2], d[1]], [d[2], 0, -d[0]], [-d[1], d[0], 0]]), np.eye(3)])
-    assert np.all(np.abs(J @ e6) <= 4.0 * np.sqrt(np.diag(J @ res.covariance @ J.T)))
+    part = np.asarray(sc.workpiece["T_table_object"])[:3, 3]
+    moved = transform_points(inv(np.asarray(sc.gt["T_cam_table"])) @ res.T_cam_table, part[None])[0] - part
+    shift_first = [3, 4, 5, 0, 1, 2]                   # covariance_at takes (shift, rotation)
+    C_part = covariance_at(res.covariance[np.ix_(shift_first, shift_first)], res.centroid_table_mm, part)[:3, :3]
+    assert np.all(np.abs(moved) <= 4.0 * np.sqrt(np.diag(C_part)))
