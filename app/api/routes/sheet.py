@@ -113,8 +113,13 @@ class StopIn(BaseModel):
 
 
 def _monitor(session, mon, recent: int = 100) -> MonitorPublic:
+    # the decisions first, then the row again: a decision and the state it sets are committed together
+    # (the poller runs beside this request), so the state read after them is at least as new as the
+    # newest decision listed (read the other way round, a "stop" could show beside "running")
+    events = svc.monitor_events(session, mon.id, limit=recent)
+    session.refresh(mon)
     return MonitorPublic(**mon.model_dump(), alignment=_alignment(svc.get_alignment(session, mon.alignment_id)),
-                         decisions=[svc.event_public(e, decision_url) for e in svc.monitor_events(session, mon.id, limit=recent)])
+                         decisions=[svc.event_public(e, decision_url) for e in events])
 
 
 def _stored(session, files, sha: str) -> Response:
