@@ -244,18 +244,23 @@ def localize(image: np.ndarray, K: np.ndarray, dist: np.ndarray, table_layout: d
     done(Stage("table markers", True, table_ms,
                f"table located from markers {', '.join(map(str, table.ids_used))}; RMS {table.rms_px:.2f} px"
                f"{gamma_note}", tdict, table_pic))
-    T_cam_table = table.T_cam_table
-    table_cov = table.frame_error()     # its error (and the intrinsics') enters every object's sigma
-
     known = ((table_model.prepare(), np.eye(4)),) if table_model is not None else ()
     table_top = _table_top(known)
     labels = marker_labels_table(table_layout)
+    table_xy = _table_xy(table_top, table_layout)
+    edges = _edges_once(image, table.gamma)
+    if chain or recognise:
+        table, levelled = _levelled(image, K, dist, table, candidates, known, labels, edges, table_top, table_xy,
+                                    min_margin=min_margin, search_threads=search_threads)
+        if levelled is not None:
+            done(levelled)
+            tdict = table.to_dict()
+    T_cam_table = table.T_cam_table
+    table_cov = table.frame_error()     # its error (and the intrinsics') enters every object's sigma
     photo_view = None
     if any(c.photo is not None for c in candidates):   # the picture as photo models see it
         photo_view = View.of(image, K, dist, table, known_edge_mask(image.shape[:2], K, dist, T_cam_table,
                                                                     list(known), labels))
-    table_xy = _table_xy(table_top, table_layout)
-    edges = _edges_once(image, table.gamma)
     # --- objects: clamps first (they occlude the workpiece), then workpieces
     ordered = sorted(candidates, key=lambda c: 0 if c.kind == "clamp" else 1)
     located: list[tuple[Candidate, Any]] = []
@@ -465,6 +470,55 @@ def _report(cand, pose, ms, located, not_found, done, image, K, dist, table, cha
         msg = f"{cand.name}: {pose.reason}"
     done(Stage(f"locate {cand.name}", bool(pose), ms, msg, pose.to_dict(),
                draw_overlay(image, K, dist, table, [(cand, pose)])))
+
+
+def _levelled(image, K, dist, table, candidates: list[Candidate], known, labels, edges, table_top, table_xy, *,
+              min_margin: float, search_threads: int):
+    """The table levelled by its biggest free-standing fixture where its markers leave its tilt more
+    open than the fixture's stance is (:mod:`app.vision.table_levelling`): (table, the stage that
+    says so, or None where it was not tried). ``table_top``: where the chain searches (None: anywhere),
+    ``table_xy``: the table's extent, at whose corners its height is least sure."""
+    from app.vision import table_levelling as tl
+
+    fixtures = [c for c in candidates if c.kind in FIXTURE_KINDS and c.photo is None and c.guide is None]
+    if not fixtures or max(table.sigma_rot_deg[:2]) <= tl.LEVEL_MIN_TILT_DEG:
+        return table, None
+    cand = _carriers_first(sorted(fixtures, key=lambda c: -float(np.linalg.norm(c.mesh.extents))))[0]
+    t = time.perf_counter()
+    model = cand.prepare()
+    x0, x1, y0, y1 = table_xy
+    heights = tl.search_heights(table.frame_error(), [(x0, y0), (x0, y1), (x1, y0), (x1, y1)])
+    # searched over the heights the table's error allows, height and tilt free by as much; on no
+    # face of the located frame (known_heights_mm None): it is that frame's error being measured
+    pose = object_pose.locate_object(
+        image, K, dist, table.T_cam_table, model, table_extent_xy=table_top,
+        table_covariance=table.frame_error(), edge_image=edges(), min_score=FIXTURE_MIN_SCORE,
+        min_margin=min_margin, height_offsets_mm=heights, free_height=True, known_models=known,
+        known_regions=labels, search_threads=search_threads,
+        **{**FIXTURE_OPTIONS, "table_tilt_sigmas": tl.SEARCH_SIGMAS})
+    ms = (time.perf_counter() - t) * 1e3
+    tilt = max(table.sigma_rot_deg[:2])
+    if not pose:
+        return table, Stage("table levelled", False, ms, f"table not levelled (its markers leave its tilt open to "
+                            f"{tilt:.2f} deg): {pose.reason}", {}, None)
+    up, base = tl.standing_base(model.resting_states[pose.resting_state].T_rest_obj, model.support_vertices)
+    lev = tl.level_table(table.T_cam_table, table.covariance, table.centroid_table_mm,
+                         tl.stance(pose.T_table_obj, _own_covariance(pose), up, base))
+    if not lev.chi2 <= tl.GATE_CHI2:
+        return table, Stage("table levelled", False, ms, f"table not levelled: {cand.name} stands "
+                            f"{lev.correction[0]:+.2f} / {lev.correction[1]:+.2f} deg and "
+                            f"{lev.correction[2]:+.2f} mm off the markers' table, more than both their sigmas "
+                            f"allow (chi-square {lev.chi2:.1f})", {}, None)
+    sd = np.sqrt(np.clip(np.diag(lev.covariance), 0.0, None))
+    msg = (f"table levelled by {cand.name} (its markers left its tilt open to {tilt:.2f} deg): turned "
+           f"{lev.correction[0]:+.2f} / {lev.correction[1]:+.2f} deg about x / y and raised "
+           f"{lev.correction[2]:+.2f} mm under it; tilt sigma now {max(np.degrees(sd[:2])):.3f} deg")
+    levelled = dataclasses.replace(table, T_cam_table=lev.T_cam_table, covariance=lev.covariance,
+                                   sigma_rot_deg=np.degrees(sd[:3]), sigma_xyz_mm=sd[3:],
+                                   warnings=table.warnings + (msg,))
+    data = {**levelled.to_dict(), "levelled_by": cand.name, "chi2": round(lev.chi2, 2),
+            "correction": [round(float(v), 4) for v in lev.correction]}
+    return levelled, Stage("table levelled", True, ms, msg, data, draw_table(image, levelled))
 
 
 def _table_top(known) -> tuple[float, float, float, float] | None:

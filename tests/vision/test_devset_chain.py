@@ -342,6 +342,58 @@ def test_a_jaw_whose_vise_was_not_found_is_not_searched():
     assert jaw["reason"] == "vise_jaw not searched: it rides on vise_body, which was not found"
 
 
+def _through_markers(scene_id: str, ids: tuple[int, ...], monkeypatch=None, level: bool = True):
+    """The scene through the chain with only the markers ``ids`` in the layout it is told."""
+    sc, image, wp = _scene(scene_id)
+    if not level:
+        from app.vision import table_levelling
+
+        monkeypatch.setattr(table_levelling, "LEVEL_MIN_TILT_DEG", 90.0)
+    few = {**sc.layout, "markers": [m for m in sc.layout["markers"] if m["id"] in ids]}
+    res = localize(image, sc.K, sc.dist, few, [wp] + sc.fixture_candidates, table_model=sc.table_candidate,
+                   chain=True, riser_heights_mm=SHOP_PARALLELS)
+    return sc, wp, res
+
+
+def test_a_table_seen_through_two_markers_is_levelled_by_its_vise(monkeypatch):
+    """setup_039 through markers 88 and 90: the located table is tilted 0.42 deg about x (3.5 of its
+    sigmas; 1.4 mm of height under the vise). On it the vise stands tilted, the flange is fitted on an
+    unknown riser 1.4 mm off in x (9 of its x sigmas). The vise, searched over the heights the
+    table's error allows with its tilt free, reads that tilt; levelled by it, the table is within
+    0.1 deg, and the flange stands on its declared parallel within 0.6 mm and 3 sigma."""
+    from app.vision.fiducials import _frame_step
+
+    sc, wp, res = _through_markers("setup_039", (88, 90), monkeypatch, level=False)
+    assert not any(s.name == "table levelled" for s in res.stages)
+    obj = next(o for o in res.objects if o["kind"] == "workpiece")
+    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"]), wp.prepare())
+    assert np.linalg.norm(err[:3]) > 1.0 and not _within_3_sigma(obj, err), err
+    monkeypatch.undo()
+    sc, wp, res = _through_markers("setup_039", (88, 90))
+    stage = next(s for s in res.stages if s.name == "table levelled")
+    assert stage.ok and stage.data["levelled_by"] == "vise_body", stage.message
+    assert stage.data["correction"][0] > 0.3 and stage.data["correction"][2] < -1.0, stage.data["correction"]
+    assert res.table["T_cam_table"] == stage.data["T_cam_table"]
+    T_levelled = np.asarray(res.table["T_cam_table"])
+    tilt = _frame_step(np.asarray(sc.gt["T_cam_table"]), T_levelled, np.asarray(res.table["centroid_table_mm"]))[:2]
+    assert np.degrees(np.abs(tilt)).max() < 0.1, np.degrees(tilt)
+    assert {"vise_body", "vise_jaw"} <= {o["name"] for o in res.objects}
+    obj = next(o for o in res.objects if o["kind"] == "workpiece")
+    assert obj["chain"][:2] == ["a declared riser 20 mm high", "vise_body seat"], obj["chain"]
+    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), np.asarray(sc.workpiece["T_table_object"]), wp.prepare())
+    assert np.linalg.norm(err[:3]) < 0.6 and np.abs(err[3:]).max() < 0.2, err
+    assert _within_3_sigma(obj, err), (err, obj["sigma"])
+
+
+def test_a_table_seen_through_many_markers_is_not_levelled():
+    """All its markers fix the table's tilt better than a vise stands (0.014 deg): nothing is re-read."""
+    sc, image, wp = _scene("setup_019")
+    res = localize(image, sc.K, sc.dist, sc.layout, [wp] + sc.fixture_candidates, table_model=sc.table_candidate,
+                   chain=True)
+    assert not any(s.name == "table levelled" for s in res.stages)
+    assert max(res.table["sigma_rot_deg"][:2]) < 0.05
+
+
 def test_small_part_on_parallels_gets_a_start_at_its_place(monkeypatch):
     """setup_007: the angle block on 30 mm parallels (not in the library: searched over free height
     on the whole table). Its place's coarse cell ranked 1364th of 1.3 million and 7th to 9th among

@@ -55,6 +55,7 @@ from app.vision.object_pose.uncertainty import (
     origin_sigma,
     prior_offsets,
     frame_covariances,
+    table_plane_sigma,
     unknown_height_covariance,
 )
 from app.vision.object_pose.verify import same_up_to_symmetry, unexplained_edges
@@ -251,6 +252,23 @@ class LocateContext:
         z0 = self.lowest_z(T)
         return any(abs(z0 - h) < 0.5 for h in self.known_heights_mm)
 
+    def table_plane(self, T: np.ndarray) -> tuple[float, float]:
+        """The table top's 1-sigma (height mm, tilt rad) under the part's centre at ``T_table_obj``
+        (:func:`.uncertainty.table_plane_sigma`); zeros without a finite table covariance."""
+        if self.table_cov is None:
+            return 0.0, 0.0
+        sh, st = table_plane_sigma(self.table_cov, transform_points(T, self.model.center_obj[None])[0])
+        return (sh, st) if np.isfinite(sh) and np.isfinite(st) else (0.0, 0.0)
+
+    def stance_sigmas(self, T: np.ndarray, sigma_mm: float, sigma_rad: float) -> tuple[float, float]:
+        """A contact prior's (height mm, tilt rad) sigmas at ``T_table_obj``, widened by
+        ``opts.table_tilt_sigmas`` of the table's own (:meth:`table_plane`)."""
+        k = self.opts.table_tilt_sigmas
+        if k <= 0:
+            return sigma_mm, sigma_rad
+        sh, st = self.table_plane(T)
+        return float(np.hypot(sigma_mm, k * sh)), float(np.hypot(sigma_rad, k * st))
+
     @property
     def declared_tops(self) -> dict[float, float]:
         """The declared risers' tops: table z (mm, to 0.01) of a known surface plus one of
@@ -319,6 +337,12 @@ class LocateContext:
                 h = min(near, key=lambda h: abs(h - z0))
                 T = make_pose(None, [0.0, 0.0, h - z0]) @ T
                 T, info = self.refine(T, tuple(f for f in free if f != 2), radii[-2:])
+        if self.opts.table_tilt_sigmas > 0 and "sol" in info:
+            # scored as it stands on the true table, which the located frame tilts (LocateOptions)
+            sz, st = self.stance_sigmas(T, self.opts.contact_sigma_mm, np.radians(self.opts.contact_sigma_deg))
+            T6, info6 = self.refine(T, FREE_6DOF, radii[-2:], prior=(T, sz, st, self.hull_obj))
+            if "sol" in info6:
+                T, info = T6, info6
         score, es, sup = self.support(T)
         spacing = float(np.median(np.linalg.norm(np.diff(es.uv_px, axis=0), axis=1))) if len(es.index) > 2 else 0.0
         support_px = float(np.count_nonzero(sup)) * min(spacing, 10.0)
@@ -802,7 +826,9 @@ def _fit6_uncached(ctx: LocateContext, r: Fit, sides: bool, rest_z: float | None
     lying_free = known and not held and abs(ctx.lowest_z(T_rest)) < 0.5     # on the table itself (z = 0)
     pressed = any(c.holds_place for c in held)
     tilt_deg = o.held_contact_sigma_deg if pressed else o.free_contact_sigma_deg if lying_free else o.contact_sigma_deg
-    pr = (T_rest, o.contact_sigma_mm if known else o.riser_sigma_mm, np.radians(tilt_deg), ctx.hull_obj)
+    sz, st = o.contact_sigma_mm if known else o.riser_sigma_mm, np.radians(tilt_deg)
+    sz, st = ctx.stance_sigmas(T_rest, sz, st)
+    pr = (T_rest, sz, st, ctx.hull_obj)
     if held:
         pr = pr + (tuple(held),)
     # the final fit places the part: without the edges beside clipped pixels (biased toward the dark

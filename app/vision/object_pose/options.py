@@ -61,6 +61,11 @@ class LocateOptions:
         face presses onto its seat
     riser_heights_mm : heights of the shop's declared risers (its parallels' tops above their base, mm):
         a part over a riser of unknown height is tested against them (``locate._declared_riser``)
+    table_tilt_sigmas : 0, or how many of the table's own sigmas (its height and tilt at the part,
+        :func:`.uncertainty.table_plane_sigma`) the part's stance may take besides its contact's:
+        each flat fine fit is then fitted once more in 6 DoF before it is scored, and the contact
+        prior is as loose. For a fixture read through a table seen by few markers, whose tilt then
+        levels the table (:mod:`app.vision.table_levelling`)
     final_reweight : Cauchy re-solves of the final 6-DoF fit per round (``refine_pose``'s
         ``reweight``); 0 keeps its soft-L1 solve alone
     """
@@ -96,6 +101,7 @@ class LocateOptions:
     riser_sigma_mm: float = RISER_SIGMA_MM
     final_reweight: int = 3
     riser_heights_mm: tuple = ()
+    table_tilt_sigmas: float = 0.0
 
     def with_(self, **changes) -> LocateOptions:
         """A copy with ``changes``; an unknown name is a ``TypeError`` that names the known ones."""

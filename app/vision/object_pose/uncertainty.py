@@ -354,3 +354,18 @@ def unknown_height_covariance(T_table_obj: np.ndarray, model: PreparedModel, T_c
     cov = np.zeros((6, 6))
     cov[:3, :3] = np.outer(slide, slide) * sigma_h_mm ** 2
     return cov
+
+
+def table_plane_sigma(table_cov, point_table: np.ndarray) -> tuple[float, float]:
+    """(height mm, tilt rad): the 1-sigma of the table top's height at ``point_table`` (table frame,
+    mm) and of its tilt (the larger of the turns about x and y), from the table pose's own error
+    (``table_cov``, as :meth:`app.vision.fiducials.TablePose.frame_error` gives it: rotation rad and
+    shift mm about its centroid). A fixture standing on the table stands on the true top, which in
+    the located frame lies this far off: with two markers 0.1-0.3 deg (the tilt about the line
+    between them rests on each marker's own perspective)."""
+    S, c = np.asarray(table_cov[0], float), np.asarray(table_cov[1], float)
+    if S.shape != (6, 6) or not np.all(np.isfinite(S)):
+        return float("inf"), float("inf")
+    lx, ly = (np.asarray(point_table, float) - c)[:2]
+    a = np.array([ly, -lx, 0.0, 0.0, 0.0, 1.0])     # dz = w_x l_y - w_y l_x + t_z
+    return float(np.sqrt(max(a @ S @ a, 0.0))), float(np.sqrt(max(S[0, 0], S[1, 1], 0.0)))
