@@ -107,7 +107,9 @@ CALIB_C_PX = 3.0
 
 # ``markers2`` / ``markers3``: only the 2 or 3 markers nearest the workpiece (in the image) are in the
 # layout the engine is told; the others are painted over where nothing hides them (hide_markers), as
-# a camera that sees a corner of the table shows only a few
+# a camera that sees a corner of the table shows only a few. Our generator's scenes (no marker corners
+# in their truth) keep the 2 or 3 seen markers nearest the workpiece on the table (few_markers_told);
+# the others stay in the picture, left out of the layout only
 
 
 # --placement: the markers' placement sigma the told layout declares (None: it declares none)
@@ -165,6 +167,15 @@ def told_intrinsics(K, kind: str, seed: int):
 
 
 GAMMA = 2.2     # the devset's encoding gamma (every scene's ``sensor.gamma``)
+
+
+def few_markers_told(gt: dict, layout: dict, T_table_part, keep: int) -> list[int]:
+    """The ids of the ``keep`` markers seen (``gt["visible_marker_ids"]``) nearest the part's origin
+    ``T_table_part`` on the table (table frame, mm)."""
+    p = np.asarray(T_table_part, float)[:2, 3]
+    seen = [m for m in layout["markers"] if m["id"] in set(gt["visible_marker_ids"])]
+    seen.sort(key=lambda m: np.linalg.norm(np.asarray(m["T_table_marker"], float)[:2, 3] - p))
+    return [m["id"] for m in seen[:keep]]
 
 
 def hide_markers(image, gt: dict, layout: dict, keep: int):
@@ -282,8 +293,9 @@ def run_scene(entry: dict, method: str) -> dict:
     markers_seen = len(sc.gt["visible_marker_ids"])
     if PERTURB.startswith("markers"):
         if entry.get("source") == "synth":
-            raise ValueError(f"--perturb {PERTURB} needs the devset's marker corners; the synth family has none")
-        image, kept = hide_markers(image, sc.gt, sc.layout, keep=int(PERTURB[len("markers"):]))
+            kept = few_markers_told(sc.gt, sc.layout, sc.workpiece["T_table_object"], int(PERTURB[len("markers"):]))
+        else:
+            image, kept = hide_markers(image, sc.gt, sc.layout, keep=int(PERTURB[len("markers"):]))
         markers_seen = len(kept)
         layout_told = {**layout_told, "markers": [m for m in layout_told["markers"] if m["id"] in kept]}
     elif PERTURB:
