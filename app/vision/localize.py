@@ -501,7 +501,14 @@ def _levelled(image, K, dist, table, candidates: list[Candidate], known, labels,
     if not pose:
         return table, Stage("table levelled", False, ms, f"table not levelled (its markers leave its tilt open to "
                             f"{tilt:.2f} deg): {pose.reason}", {}, None)
-    up, base = tl.standing_base(model.resting_states[pose.resting_state].T_rest_obj, model.support_vertices)
+    if "contact" in pose.flags or not all(np.isfinite(pose.sigma[k]) for k in ("z_mm", "rx_deg", "ry_deg")):
+        return table, Stage("table levelled", False, ms, f"table not levelled: {cand.name}'s height and tilt "
+                            f"could not be measured ({pose.score:.0%} of its edges)", {}, None)
+    # its stance as the reported frame stands: the pose is given up to an exact symmetry of the model
+    T_rest = model.resting_states[pose.resting_state].T_rest_obj
+    up, base = max((tl.standing_base(T_rest @ S, model.support_vertices)
+                    for S in [np.eye(4)] + [s.S for s in model.symmetries if s.exact]),
+                   key=lambda ub: float((pose.T_table_obj[:3, :3] @ ub[0])[2]))
     lev = tl.level_table(table.T_cam_table, table.covariance, table.centroid_table_mm,
                          tl.stance(pose.T_table_obj, _own_covariance(pose), up, base))
     if not lev.chi2 <= tl.GATE_CHI2:
