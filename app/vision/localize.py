@@ -474,33 +474,39 @@ def _report(cand, pose, ms, located, not_found, done, image, K, dist, table, cha
 
 def _levelled(image, K, dist, table, candidates: list[Candidate], known, labels, edges, table_top, table_xy, *,
               min_margin: float, search_threads: int):
-    """The table levelled by its biggest free-standing fixture where its markers leave its tilt more
-    open than the fixture's stance is (:mod:`app.vision.table_levelling`): (table, the stage that
-    says so, or None where it was not tried). ``table_top``: where the chain searches (None: anywhere),
-    ``table_xy``: the table's extent, at whose corners its height is least sure."""
+    """The table levelled by its biggest free-standing fixture found (of the :data:`LEVEL_TRIES`
+    biggest) where its markers leave its tilt more open than the fixture's stance is
+    (:mod:`app.vision.table_levelling`): (table, the stage that says so, or None where it was not
+    tried). ``table_top``: where the chain searches (None: anywhere), ``table_xy``: the table's
+    extent, at whose corners its height is least sure."""
     from app.vision import table_levelling as tl
 
     fixtures = [c for c in candidates if c.kind in FIXTURE_KINDS and c.photo is None and c.guide is None]
     if not fixtures or max(table.sigma_rot_deg[:2]) <= tl.LEVEL_MIN_TILT_DEG:
         return table, None
-    cand = _carriers_first(sorted(fixtures, key=lambda c: -float(np.linalg.norm(c.mesh.extents))))[0]
     t = time.perf_counter()
-    model = cand.prepare()
     x0, x1, y0, y1 = table_xy
     heights = tl.search_heights(table.frame_error(), [(x0, y0), (x0, y1), (x1, y0), (x1, y1)])
-    # searched over the heights the table's error allows, height and tilt free by as much; on no
-    # face of the located frame (known_heights_mm None): it is that frame's error being measured
-    pose = object_pose.locate_object(
-        image, K, dist, table.T_cam_table, model, table_extent_xy=table_top,
-        table_covariance=table.frame_error(), edge_image=edges(), min_score=FIXTURE_MIN_SCORE,
-        min_margin=min_margin, height_offsets_mm=heights, free_height=True, known_models=known,
-        known_regions=labels, search_threads=search_threads,
-        **{**FIXTURE_OPTIONS, "table_tilt_sigmas": tl.SEARCH_SIGMAS})
-    ms = (time.perf_counter() - t) * 1e3
     tilt = max(table.sigma_rot_deg[:2])
+    missed = []
+    # a library holds more fixtures than a picture shows (recognition looks for all of them)
+    for cand in _carriers_first(sorted(fixtures, key=lambda c: -float(np.linalg.norm(c.mesh.extents))))[:LEVEL_TRIES]:
+        model = cand.prepare()
+        # searched over the heights the table's error allows, height and tilt free by as much; on no
+        # face of the located frame (known_heights_mm None): it is that frame's error being measured
+        pose = object_pose.locate_object(
+            image, K, dist, table.T_cam_table, model, table_extent_xy=table_top,
+            table_covariance=table.frame_error(), edge_image=edges(), min_score=FIXTURE_MIN_SCORE,
+            min_margin=min_margin, height_offsets_mm=heights, free_height=True, known_models=known,
+            known_regions=labels, search_threads=search_threads,
+            **{**FIXTURE_OPTIONS, "table_tilt_sigmas": tl.SEARCH_SIGMAS})
+        if pose:
+            break
+        missed.append(pose.reason)
+    ms = (time.perf_counter() - t) * 1e3
     if not pose:
         return table, Stage("table levelled", False, ms, f"table not levelled (its markers leave its tilt open to "
-                            f"{tilt:.2f} deg): {pose.reason}", {}, None)
+                            f"{tilt:.2f} deg): {'; '.join(missed)}", {}, None)
     if "contact" in pose.flags or not all(np.isfinite(pose.sigma[k]) for k in ("z_mm", "rx_deg", "ry_deg")):
         return table, Stage("table levelled", False, ms, f"table not levelled: {cand.name}'s height and tilt "
                             f"could not be measured ({pose.score:.0%} of its edges)", {}, None)
@@ -739,6 +745,10 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
                 chain_text)
     return Chain(located, not_found, surfaces, jaw_faces)
 
+
+#: how many of the biggest free-standing fixtures are tried, biggest first, to level a table whose
+#: markers leave its tilt open (each miss costs a search, 2-3 s)
+LEVEL_TRIES = 2
 
 #: two fixtures read at one place whose table-frame boxes differ by at most this (mm) fill the same space
 LOOKALIKE_SAME_MM = 2.5

@@ -385,6 +385,20 @@ def test_a_table_seen_through_two_markers_is_levelled_by_its_vise(monkeypatch):
     assert _within_3_sigma(obj, err), (err, obj["sigma"])
 
 
+def test_a_bigger_fixture_the_picture_does_not_show_does_not_stop_the_levelling():
+    """The shop's library holds a bigger vise that is not on the table (a 460 x 220 x 130 block): it
+    is tried first and not found, and the vise that is there levels the table."""
+    sc, image, wp = _scene("setup_039")
+    absent = trimesh.creation.box(extents=(460.0, 220.0, 130.0))
+    absent.apply_translation([0.0, 0.0, 65.0])
+    few = {**sc.layout, "markers": [m for m in sc.layout["markers"] if m["id"] in (88, 90)]}
+    res = localize(image, sc.K, sc.dist, few, [wp, *sc.fixture_candidates, Candidate("big_vise", absent, kind="clamp")],
+                   table_model=sc.table_candidate, chain=True, riser_heights_mm=SHOP_PARALLELS)
+    stage = next(s for s in res.stages if s.name == "table levelled")
+    assert stage.ok and stage.data["levelled_by"] == "vise_body", stage.message
+    assert "big_vise" not in {o["name"] for o in res.objects}
+
+
 def test_a_table_seen_through_many_markers_is_not_levelled():
     """All its markers fix the table's tilt better than a vise stands (0.014 deg): nothing is re-read."""
     sc, image, wp = _scene("setup_019")
