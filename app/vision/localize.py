@@ -523,9 +523,9 @@ def _levelled(image, K, dist, table, candidates: list[Candidate], known, labels,
                             f"{lev.correction[2]:+.2f} mm off the markers' table, more than both their sigmas "
                             f"allow (chi-square {lev.chi2:.1f})", {}, None)
     sd = np.sqrt(np.clip(np.diag(lev.covariance), 0.0, None))
-    msg = (f"table levelled by {cand.name} (its markers left its tilt open to {tilt:.2f} deg): turned "
-           f"{lev.correction[0]:+.2f} / {lev.correction[1]:+.2f} deg about x / y and raised "
-           f"{lev.correction[2]:+.2f} mm under it; tilt sigma now {max(np.degrees(sd[:2])):.3f} deg")
+    msg = (f"table levelled by {cand.name} (its markers left its tilt open to {tilt:.2f} deg): their table "
+           f"was off by {lev.correction[0]:+.2f} / {lev.correction[1]:+.2f} deg about x / y and "
+           f"{lev.correction[2]:+.2f} mm in height under it; tilt sigma now {max(np.degrees(sd[:2])):.3f} deg")
     levelled = dataclasses.replace(table, T_cam_table=lev.T_cam_table, covariance=lev.covariance,
                                    sigma_rot_deg=np.degrees(sd[:3]), sigma_xyz_mm=sd[3:],
                                    warnings=table.warnings + (msg,))
