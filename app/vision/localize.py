@@ -482,21 +482,22 @@ def _levelled(image, K, dist, table, candidates: list[Candidate], known, labels,
     from app.vision import table_levelling as tl
 
     fixtures = [c for c in candidates if c.kind in FIXTURE_KINDS and c.photo is None and c.guide is None]
-    if not fixtures or max(table.sigma_rot_deg[:2]) <= tl.LEVEL_MIN_TILT_DEG:
+    tilt = max(table.sigma_rot_deg[:2])
+    if not fixtures or tilt <= tl.LEVEL_MIN_TILT_DEG:
         return table, None
     t = time.perf_counter()
+    frame = table.frame_error()
     x0, x1, y0, y1 = table_xy
-    heights = tl.search_heights(table.frame_error(), [(x0, y0), (x0, y1), (x1, y0), (x1, y1)])
-    tilt = max(table.sigma_rot_deg[:2])
+    heights = tl.search_heights(frame, [(x0, y0), (x0, y1), (x1, y0), (x1, y1)])
     missed = []
     # a library holds more fixtures than a picture shows (recognition looks for all of them)
-    for cand in _carriers_first(sorted(fixtures, key=lambda c: -float(np.linalg.norm(c.mesh.extents))))[:LEVEL_TRIES]:
+    for cand in _biggest_first(fixtures)[:LEVEL_TRIES]:
         model = cand.prepare()
         # searched over the heights the table's error allows, height and tilt free by as much; on no
         # face of the located frame (known_heights_mm None): it is that frame's error being measured
         pose = object_pose.locate_object(
             image, K, dist, table.T_cam_table, model, table_extent_xy=table_top,
-            table_covariance=table.frame_error(), edge_image=edges(), min_score=FIXTURE_MIN_SCORE,
+            table_covariance=frame, edge_image=edges(), min_score=FIXTURE_MIN_SCORE,
             min_margin=min_margin, height_offsets_mm=heights, free_height=True, known_models=known,
             known_regions=labels, search_threads=search_threads,
             **{**FIXTURE_OPTIONS, "table_tilt_sigmas": tl.SEARCH_SIGMAS})
@@ -659,8 +660,7 @@ def _locate_chain(image, K, dist, T_cam_table, ordered, known, labels, table, do
     jaw_faces: list = []                 # vertical faces of the located fixtures (clamping.fixture_faces)
     # everything in the chain stands on the table: search its top, not the floor around it
     table_xy = _table_top(known)
-    fixtures = _carriers_first(sorted([c for c in ordered if c.kind in FIXTURE_KINDS],
-                                      key=lambda c: -float(np.linalg.norm(c.mesh.extents))))
+    fixtures = _biggest_first([c for c in ordered if c.kind in FIXTURE_KINDS])
     parts = [c for c in ordered if c.kind not in FIXTURE_KINDS]
     for cand in fixtures + parts:
         t = time.perf_counter()
@@ -820,6 +820,12 @@ def riser_heights(candidates: list[Candidate], declared=()) -> tuple[float, ...]
         tops = [float(s["z_mm"]) for s in (c.support_surfaces or [])] or [float(c.mesh.bounds[1, 2])]
         out.update(round(z - z0, 3) for z in tops if z - z0 > 0.5)
     return tuple(sorted(out))
+
+
+def _biggest_first(fixtures: list[Candidate]) -> list[Candidate]:
+    """Fixtures in the order they are searched: biggest first (by their box's diagonal), each carrier
+    before what rides on it (:func:`_carriers_first`)."""
+    return _carriers_first(sorted(fixtures, key=lambda c: -float(np.linalg.norm(c.mesh.extents))))
 
 
 def _carriers_first(fixtures: list[Candidate]) -> list[Candidate]:

@@ -14,7 +14,7 @@ again, with the fused covariance.
 
 Frames: ``T_cam_table`` maps table into camera (mm); the table's error ``e`` = (rotation about the
 table axes rad, shift mm) about the markers' centroid is as :func:`app.vision.fiducials.locate_table`
-states it: the located frame is ``T_cam_table_true @ E(e)`` (:func:`.object_pose.uncertainty._table_error`).
+states it: the located frame is ``T_cam_table_true @ E(e)`` (:func:`.object_pose.uncertainty.table_error`).
 Pure maths: nothing here imports from api/, store/ or services/.
 """
 
@@ -23,10 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
 from app.geometry.transforms import inv, transform_points
-from app.vision.object_pose.uncertainty import covariance_at, table_plane_sigma
+from app.vision.object_pose.uncertainty import covariance_at, table_error, table_height_row, table_plane_sigma
 
 # The table is levelled when its tilt sigma exceeds this (deg): a fixture's own contact sigma
 # (localize.FIXTURE_OPTIONS), beyond which the table knows the fixture's stance less well than the
@@ -68,7 +66,6 @@ class Levelling:
     covariance: np.ndarray
     correction: np.ndarray
     chi2: float
-    at: np.ndarray
 
 
 def search_heights(table_cov, corners_xy) -> tuple[float, ...]:
@@ -98,9 +95,7 @@ def level_table(T_cam_table: np.ndarray, table_cov: np.ndarray, centroid: np.nda
     """The table pose and covariance updated with a fixture's stance ``st`` (Kalman: the stance reads
     ``-A e`` plus its noise, ``A`` the table error's tilt and height at the base)."""
     S = np.asarray(table_cov, float)
-    c = np.asarray(centroid, float)
-    lx, ly = (st.at - c)[:2]
-    A = np.array([[1.0, 0, 0, 0, 0, 0], [0, 1.0, 0, 0, 0, 0], [ly, -lx, 0, 0, 0, 1.0]])
+    A = np.vstack([np.eye(6)[:2], table_height_row(st.at, centroid)])
     Sy = A @ S @ A.T + st.C
     Sy_inv = np.linalg.inv(Sy)
     chi2 = float(st.m @ Sy_inv @ st.m)
@@ -109,14 +104,10 @@ def level_table(T_cam_table: np.ndarray, table_cov: np.ndarray, centroid: np.nda
     S_new = S - G @ A @ S
     S_new = 0.5 * (S_new + S_new.T)
     # the located frame is the true one moved by E(e): the levelled one undoes the estimate of it
-    E = np.eye(4)
-    R = Rotation.from_rotvec(e[:3]).as_matrix()
-    E[:3, :3] = R
-    E[:3, 3] = c - R @ c + e[3:]
-    T_new = T_cam_table @ inv(E)
+    T_new = T_cam_table @ inv(table_error(e, centroid))
     done = -(A @ e)                 # what the levelling took out at the base: tilt rad, height mm
     return Levelling(T_cam_table=T_new, covariance=S_new,
-                     correction=np.array([np.degrees(done[0]), np.degrees(done[1]), done[2]]), chi2=chi2, at=st.at)
+                     correction=np.array([np.degrees(done[0]), np.degrees(done[1]), done[2]]), chi2=chi2)
 
 
 def standing_base(T_rest_obj: np.ndarray, support_vertices_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

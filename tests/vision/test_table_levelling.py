@@ -6,7 +6,7 @@ import numpy as np
 import trimesh
 
 from app.geometry.transforms import inv, make_pose, transform_points
-from app.vision.object_pose.uncertainty import _table_error, table_plane_sigma
+from app.vision.object_pose.uncertainty import table_error, table_plane_sigma
 from app.vision.table_levelling import (
     GATE_CHI2,
     HEIGHT_STEP_MM,
@@ -77,7 +77,7 @@ def test_a_vise_that_stands_flat_levels_a_table_tilted_about_its_open_axis():
     its tilt sigma is the vise's, not the markers'."""
     T_true = _true_cam_table()
     e = np.r_[np.radians([0.4, 0.01, 0.0]), [0.0, 0.0, 0.1]]
-    T_loc = T_true @ _table_error(e, CENTROID)
+    T_loc = T_true @ table_error(e, CENTROID)
     at = CENTROID + [50.0, 200.0, 0.0]
     before = _tilt_and_height(T_loc, T_true, at)
     assert abs(before[0]) > 0.35 and abs(before[2]) > 1.0

@@ -219,8 +219,8 @@ def frame_covariances(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, c
         h = 1e-6 if k < 3 else 1e-3
         e = np.zeros(6)
         e[k] = h
-        M[:, k] = (_raw(info, p, K, dist, T_cam_table @ _table_error(e, c))[use]
-                   - _raw(info, p, K, dist, T_cam_table @ _table_error(-e, c))[use]) / (2 * h) * sw
+        M[:, k] = (_raw(info, p, K, dist, T_cam_table @ table_error(e, c))[use]
+                   - _raw(info, p, K, dist, T_cam_table @ table_error(-e, c))[use]) / (2 * h) * sw
     H = _information(info, Ji) / s2
     P = _prior_information(info, p)
     if P is not None:
@@ -234,15 +234,15 @@ def frame_covariances(info: dict, K, dist, T_cam_table, table_cov: np.ndarray, c
         Mk = np.zeros((int(use.sum()), 3))
         for k, h in enumerate(INTRINSICS_STEPS):
             e = np.asarray(k_jac, float)[:, k] * h
-            Mk[:, k] = (_raw(info, p, moved_intrinsics(K, k, h), dist, T_cam_table @ _table_error(e, c))[use]
-                        - _raw(info, p, moved_intrinsics(K, k, -h), dist, T_cam_table @ _table_error(-e, c))[use]
+            Mk[:, k] = (_raw(info, p, moved_intrinsics(K, k, h), dist, T_cam_table @ table_error(e, c))[use]
+                        - _raw(info, p, moved_intrinsics(K, k, -h), dist, T_cam_table @ table_error(-e, c))[use]
                         ) / (2 * h) * sw
         Bk = -Hinv @ (Ji.T @ Mk) / s2
         cov_k[np.ix_(free, free)] = Bk @ np.diag(np.asarray(k_sigma, float) ** 2) @ Bk.T
     return cov, cov_k
 
 
-def _table_error(e: np.ndarray, centroid: np.ndarray) -> np.ndarray:
+def table_error(e: np.ndarray, centroid: np.ndarray) -> np.ndarray:
     """``E`` with ``T_cam_table_wrong = T_cam_table @ E``: rotation ``e[:3]`` (rad, table axes) about
     ``centroid`` and shift ``e[3:]`` (mm), as :func:`app.vision.fiducials.locate_table` fits it."""
     E = np.eye(4)
@@ -363,9 +363,16 @@ def table_plane_sigma(table_cov, point_table: np.ndarray) -> tuple[float, float]
     shift mm about its centroid). A fixture standing on the table stands on the true top, which in
     the located frame lies this far off: with two markers 0.1-0.3 deg (the tilt about the line
     between them rests on each marker's own perspective)."""
-    S, c = np.asarray(table_cov[0], float), np.asarray(table_cov[1], float)
+    S = np.asarray(table_cov[0], float)
     if S.shape != (6, 6) or not np.all(np.isfinite(S)):
         return float("inf"), float("inf")
-    lx, ly = (np.asarray(point_table, float) - c)[:2]
-    a = np.array([ly, -lx, 0.0, 0.0, 0.0, 1.0])     # dz = w_x l_y - w_y l_x + t_z
+    a = table_height_row(point_table, table_cov[1])
     return float(np.sqrt(max(a @ S @ a, 0.0))), float(np.sqrt(max(S[0, 0], S[1, 1], 0.0)))
+
+
+def table_height_row(point_table: np.ndarray, centroid_table_mm: np.ndarray) -> np.ndarray:
+    """(6,) how the table top's height (mm) at ``point_table`` moves with the table's error ``e``
+    (rotation rad, shift mm about ``centroid_table_mm``, as :func:`table_error`):
+    ``dz = w_x l_y - w_y l_x + t_z`` with ``l`` the lever from the centroid."""
+    lx, ly = (np.asarray(point_table, float) - np.asarray(centroid_table_mm, float))[:2]
+    return np.array([ly, -lx, 0.0, 0.0, 0.0, 1.0])

@@ -95,13 +95,13 @@ def _edge_fit_info(prior=None, noise_px: float = 0.05):
     return info, K, T_cam_table
 
 
-def test_a_table_error_moves_a_freely_fitted_part_as_the_frame_moves():
+def test_atable_error_moves_a_freely_fitted_part_as_the_frame_moves():
     """Seen exactly and fitted in all six axes, a part in a table frame that is off by E is found at
     inv(E) @ T: the table term's linear map B must give that pose (the sigma then is B S B^T)."""
     from scipy.spatial.transform import Rotation
 
     from app.vision.object_pose.pose_params import perturb
-    from app.vision.object_pose.uncertainty import _table_error, table_covariance
+    from app.vision.object_pose.uncertainty import table_error, table_covariance
 
     info, K, T_cam_table = _edge_fit_info()
     centroid = np.array([100.0, 100.0, 0.0])                 # the markers' centroid, 400 mm away
@@ -109,7 +109,7 @@ def test_a_table_error_moves_a_freely_fitted_part_as_the_frame_moves():
     S = np.outer(e, e)                                       # a covariance whose only direction is e
     C = table_covariance(info, K, None, T_cam_table, S, centroid)
     # C = (B e)(B e)^T: compare the pose B e gives with inv(E) @ T
-    expected = inv(_table_error(e, centroid)) @ info["T0"]
+    expected = inv(table_error(e, centroid)) @ info["T0"]
     D, c = expected @ inv(info["T0"]), info["c_table"]          # expected = perturb(T0, c, want)
     want = np.concatenate([D[:3, 3] - c + D[:3, :3] @ c, Rotation.from_matrix(D[:3, :3]).as_rotvec()])
     np.testing.assert_allclose(perturb(info["T0"], info["c_table"], want), expected, atol=1e-9)
@@ -142,13 +142,13 @@ def test_intrinsics_off_move_the_part_as_the_refit_says():
     from scipy.optimize import least_squares
 
     from app.vision.intrinsics import moved_intrinsics
-    from app.vision.object_pose.uncertainty import _raw, _table_error, table_covariance
+    from app.vision.object_pose.uncertainty import _raw, table_error, table_covariance
 
     info, K, T_cam_table = _edge_fit_info(noise_px=0.0)
     centroid = np.array([100.0, 100.0, 0.0])
     k_jac = np.array([[1e-3, 0, 0], [-2e-3, 0, 0], [5e-4, 0, 0], [40.0, 0, 0], [-25.0, 0, 0], [60.0, 0, 0]])
     df = 0.004
-    T_told = T_cam_table @ _table_error(k_jac[:, 0] * df, centroid)
+    T_told = T_cam_table @ table_error(k_jac[:, 0] * df, centroid)
     K_told = moved_intrinsics(K, 0, df)
     d = least_squares(lambda p: _raw(info, p, K_told, None, T_told), np.zeros(6), x_scale=[0.1] * 3 + [1e-3] * 3,
                       xtol=1e-14, ftol=1e-14).x
