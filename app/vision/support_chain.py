@@ -149,3 +149,27 @@ def placed_height_above(surfaces: list[SupportSurface], T_table_obj: np.ndarray,
         if best is None or s.height_mm > best.height_mm:
             best = s
     return best
+
+
+def share_of_base_within(extent_xy: tuple[float, float, float, float], T_table_obj: np.ndarray,
+                         vertices_obj: np.ndarray, n_grid: int = 41) -> float:
+    """Share (0..1) of the placed part's base (the convex hull of its vertices within 0.5 mm of its
+    lowest point, seen from above) that lies within ``extent_xy`` (x_lo, x_hi, y_lo, y_hi, mm, table
+    frame): measured on an ``n_grid`` x ``n_grid`` grid over the base's box. A base without area (a
+    point, an edge) counts as its points: 1.0 if they all lie within. ``vertices_obj``: as in
+    :func:`placed_height_above`."""
+    V = transform_points(T_table_obj, np.asarray(vertices_obj, dtype=float))
+    base = V[V[:, 2] <= V[:, 2].min() + 0.5, :2]
+    x0, x1, y0, y1 = extent_xy
+    lo, hi = base.min(axis=0), base.max(axis=0)
+    try:
+        hull = ConvexHull(base)
+    except Exception:   # noqa: BLE001 - flat or too few points: no area to share
+        inside = (base[:, 0] >= x0) & (base[:, 0] <= x1) & (base[:, 1] >= y0) & (base[:, 1] <= y1)
+        return float(inside.all())
+    gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], n_grid), np.linspace(lo[1], hi[1], n_grid))
+    G = np.column_stack([gx.ravel(), gy.ravel()])
+    G = G[np.all(G @ hull.equations[:, :2].T + hull.equations[:, 2] <= 1e-6, axis=1)]
+    if not len(G):
+        return 1.0
+    return float(np.mean((G[:, 0] >= x0) & (G[:, 0] <= x1) & (G[:, 1] >= y0) & (G[:, 1] <= y1)))

@@ -312,6 +312,21 @@ def test_vise_found_where_a_coarse_grid_missed_it(scene_id):
     assert np.linalg.norm(err[:3]) < 0.5 and np.nanmax(np.abs(err[3:])) < 0.1, err
 
 
+def test_vise_found_where_its_own_body_hides_its_lower_edges():
+    """Devset setup_029: the vise seen from high in front, a bracket on parallels between its jaws.
+    The coarse correlation ranked the vise's true cell 64th among the local maxima of its turn, of
+    which 4 were re-scored in the image: every start lay 46 mm across the vise (best fit 32 %,
+    refused). Fixtures now have 64 maxima of every turn re-scored, and the image scores leave out
+    the edges the vise hides behind its own body (``search._self_hidden``): it is found. Either
+    alone does not find it."""
+    sc, res, truth = _fixtures("setup_029")
+    obj = next((o for o in res.objects if o["name"] == "vise_body"), None)
+    assert obj is not None, res.not_found
+    body = next(c for c in sc.fixture_candidates if c.name == "vise_body")
+    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), truth["vise_body"], body.prepare())
+    assert np.linalg.norm(err[:3]) < 0.5 and np.nanmax(np.abs(err[3:])) < 0.1, err
+
+
 @pytest.mark.parametrize("scene_id", ["setup_006", "setup_016"])
 def test_the_moving_jaw_is_found_along_its_guide(scene_id):
     """A plain box: searched anywhere in any rotation it was "ambiguous: two different poses fit almost
@@ -387,7 +402,10 @@ def test_a_table_seen_through_two_markers_is_levelled_by_its_vise(monkeypatch):
 
 def test_a_bigger_fixture_the_picture_does_not_show_does_not_stop_the_levelling():
     """The shop's library holds a bigger vise that is not on the table (a 460 x 220 x 130 block): it
-    is tried first and not found, and the vise that is there levels the table."""
+    is tried first and not found, and the vise that is there levels the table. Searched with 64
+    maxima of every turn, the block fits 76 % of its visible edges along the table's slots and its
+    end, with 44 % of its base off the table, and the vise was then not found: a fixture
+    standing on the table has most of its base over its top (``localize.BASE_ON_TABLE_MIN``)."""
     sc, image, wp = _scene("setup_039")
     absent = trimesh.creation.box(extents=(460.0, 220.0, 130.0))
     absent.apply_translation([0.0, 0.0, 65.0])

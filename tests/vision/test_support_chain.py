@@ -7,6 +7,7 @@ import trimesh
 
 from app.geometry.transforms import make_pose
 from app.vision.support_chain import (FIXTURE_RISERS_MM, TABLE_RISERS_MM, placed_height_above, search_planes,
+                                      share_of_base_within,
                                       support_surfaces, table_surface)
 
 
@@ -53,3 +54,23 @@ def test_the_carrier_is_the_highest_surface_under_the_part():
     assert s.carrier == "vise" and s.height_mm == 70.0
     beside = make_pose(None, [400.0, 30.0, 0.0])
     assert placed_height_above(surf, beside, part.vertices).carrier == "table"
+
+
+def test_the_share_of_a_base_over_the_table_top():
+    """A 460 x 220 mm box on an 800 x 400 mm table top: all of its base over it in the middle, 30 % off
+    where it stands 138 mm over the end, its base turned 90 deg over a corner a quarter on; an upright
+    cylinder's round base likewise; a base without area (a knife edge) is on or off."""
+    box = trimesh.creation.box((460.0, 220.0, 130.0))
+    box.apply_translation([0.0, 0.0, 65.0])
+    top = (0.0, 800.0, 0.0, 400.0)
+    assert share_of_base_within(top, make_pose(np.eye(3), [400.0, 200.0, 0.0]), box.vertices) == 1.0
+    over_end = share_of_base_within(top, make_pose(np.eye(3), [92.0, 200.0, 0.0]), box.vertices)
+    assert abs(over_end - 0.7) < 0.03, over_end
+    turned = make_pose(np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]]), [800.0, 400.0, 0.0])
+    assert abs(share_of_base_within(top, turned, box.vertices) - 0.25) < 0.03
+    cyl = trimesh.creation.cylinder(radius=50.0, height=40.0, sections=64)
+    cyl.apply_translation([0.0, 0.0, 20.0])
+    assert abs(share_of_base_within(top, make_pose(np.eye(3), [0.0, 200.0, 0.0]), cyl.vertices) - 0.5) < 0.03
+    knife = np.array([[-50.0, 0, 0], [50, 0, 0], [0, -10, 30], [0, 10, 30]])
+    assert share_of_base_within(top, make_pose(np.eye(3), [400.0, 200.0, 0.0]), knife) == 1.0
+    assert share_of_base_within(top, make_pose(np.eye(3), [20.0, 200.0, 0.0]), knife) == 0.0

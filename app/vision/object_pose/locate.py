@@ -403,7 +403,8 @@ def _find(ctx: LocateContext, start_poses, table_extent_xy, start_capture=None):
     extent = centre_extent(table_extent_xy, ctx.model.diameter_mm)
     found = find_starts(ctx.eimg, ctx.K, ctx.dist, ctx.T_cam_table, ctx.model, height_offsets_mm=o.height_offsets_mm,
                         resting_states=o.resting_states, n_starts=o.n_starts, n_planar=o.n_planar,
-                        n_coarse=o.n_coarse, coarse_step_max_mm=o.coarse_step_max_mm,
+                        n_coarse=o.n_coarse, coarse_step_max_mm=o.coarse_step_max_mm, turn_maxima=o.turn_maxima,
+                        self_occlusion=o.self_occlusion,
                         max_edges=o.max_edges, rng=np.random.default_rng(o.seed), timings=ctx.timings,
                         table_extent_xy=extent, threads=o.search_threads)
     if isinstance(found, str) or not ctx.clamp_faces:

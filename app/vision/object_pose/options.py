@@ -46,6 +46,10 @@ class LocateOptions:
     settle_starts : search each start once more densely around itself before the fine fit
     n_coarse : coarse cells of the plane search re-scored in the image (per resting state and height)
     coarse_step_max_mm : the plane search's coarse cell is the part's size / 18, at most this (mm)
+    turn_maxima : at least this many local maxima of every turn of the coarse correlation are
+        re-scored in the image (``search.local_maxima_per_turn``: 4 to 16 by the table's size)
+    self_occlusion : the plane search's image scores leave out the edges the model hides behind
+        itself from where the camera sees it (one z-buffer per 15 deg of view, ``search._self_hidden``)
     max_edges : image edge pixels cast onto the search planes (a random subset beyond)
     search_threads : resting states searched at the same time (``search.SEARCH_THREADS``); the
         result does not depend on it
@@ -89,6 +93,8 @@ class LocateOptions:
     settle_starts: bool = False
     n_coarse: int = 40
     coarse_step_max_mm: float = COARSE_STEP_MAX_MM
+    turn_maxima: int = 0
+    self_occlusion: bool = False
     max_edges: int = 60000
     search_threads: int = SEARCH_THREADS
     sigma_scale: float = SIGMA_SCALE

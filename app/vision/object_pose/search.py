@@ -21,7 +21,7 @@ from scipy import fft as sfft
 from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
-from app.geometry.model_edges import PreparedModel, project_points_px
+from app.geometry.model_edges import PreparedModel, project_points_px, visible_edge_samples
 from app.geometry.transforms import check_pose, inv, make_pose, transform_points
 from app.vision.object_pose.edge_image import EdgeImage, nearest_edge_maps
 from app.vision.object_pose.planar_fit import planar_fit, sample_subset
@@ -204,10 +204,75 @@ def edge_faces_of(model: PreparedModel, T_rest_obj: np.ndarray, sel: np.ndarray)
             ~model.edge_feature[model.sample_edge[sel]])
 
 
+#: the self-occlusion masks' bins of the direction the camera is seen from, in the resting frame (deg)
+VIEW_BIN_DEG = 15.0
+#: the self-occlusion masks are rendered this many px across the model (a z-buffer per bin used)
+VIEW_RENDER_PX = 300
+
+
+def _view_bins(model: PreparedModel, T_rest_obj: np.ndarray, C, hx, hy, ht, height_mm: float):
+    """The bin of the direction from each planar pose's model centre to the camera centre ``C``
+    (table frame, mm), in the resting frame: ``1000 * azimuth + 500 + elevation``, each in steps of
+    :data:`VIEW_BIN_DEG` (a camera below the part's centre has a negative elevation); and the median
+    distance (mm)."""
+    c = transform_points(T_rest_obj, model.center_obj[None, :])[0]
+    co, si = np.cos(ht), np.sin(ht)
+    vx = C[0] - (hx + co * c[0] - si * c[1])
+    vy = C[1] - (hy + si * c[0] + co * c[1])
+    vz = np.full_like(vx, C[2] - (height_mm + c[2]))
+    rx, ry = co * vx + si * vy, -si * vx + co * vy          # turned back into the resting frame
+    n_az = int(round(360.0 / VIEW_BIN_DEG))
+    az = np.mod(np.rint(np.degrees(np.arctan2(ry, rx)) / VIEW_BIN_DEG), n_az).astype(np.int64)
+    el = np.rint(np.degrees(np.arctan2(vz, np.hypot(rx, ry))) / VIEW_BIN_DEG).astype(np.int64)
+    return az * 1000 + el + 500, float(np.median(np.sqrt(vx ** 2 + vy ** 2 + vz ** 2)))
+
+
+def _self_hidden(model: PreparedModel, T_rest_obj: np.ndarray, view_bin: int, distance_mm: float,
+                 sel: np.ndarray) -> np.ndarray:
+    """Which samples ``sel`` the model hides behind itself, seen from the middle of ``view_bin``
+    (:func:`_view_bins`) at ``distance_mm``: (len(sel),) bool. A sample that turns away from that
+    view is left to the scorer's own facing test (it depends on the exact pose)."""
+    az, el = np.radians(VIEW_BIN_DEG * (view_bin // 1000)), np.radians(VIEW_BIN_DEG * (view_bin % 1000 - 500))
+    to_cam = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    c = transform_points(T_rest_obj, model.center_obj[None, :])[0]
+    z = -to_cam
+    x = np.cross(z, [0.0, 0.0, 1.0]) if abs(to_cam[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])                     # rows: the camera's axes in the resting frame
+    d = max(distance_mm, model.diameter_mm)
+    T_cam_rest = make_pose(R, -R @ (c + d * to_cam))
+    f = VIEW_RENDER_PX * d / max(model.diameter_mm, 1e-6)
+    n = int(1.2 * VIEW_RENDER_PX)
+    K = np.array([[f, 0.0, n / 2], [0.0, f, n / 2], [0.0, 0.0, 1.0]])
+    T = T_cam_rest @ T_rest_obj
+    kw = {"subset": sel, "margin_px": 0.0, "max_buffer_px": n}
+    front = visible_edge_samples(model, T, K, np.zeros(5), n, n, occlusion_test=False, **kw).index
+    shown = visible_edge_samples(model, T, K, np.zeros(5), n, n, occlusion_test=True, **kw).index
+    return np.isin(sel, np.setdiff1d(front, shown))
+
+
+def _unhidden_scores(score, model: PreparedModel, T_rest_obj, C, hx, hy, ht, P, D, w, sel, height_mm: float,
+                     normals, masks: dict):
+    """``score(hx, hy, ht, P, D, w, normals=normals)`` with, per pose, the samples the model hides
+    behind itself from where the camera sees it (:func:`_self_hidden`, one mask per view bin, kept in
+    ``masks``) weighted zero: seen from above, a vise's base and the lower steps of its ways lie under
+    its body, and counting them as misses ranked its true place below clutter."""
+    bins, dist = _view_bins(model, T_rest_obj, C, hx, hy, ht, height_mm)
+    out = np.empty(len(hx))
+    for vb in np.unique(bins):
+        key = (vb, sel.tobytes())
+        if key not in masks:
+            masks[key] = _self_hidden(model, T_rest_obj, int(vb), dist, sel)
+        i = np.nonzero(bins == vb)[0]
+        out[i] = score(hx[i], hy[i], ht[i], P, D, np.where(masks[key], 0.0, w), normals=normals)
+    return out
+
+
 def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, extent_xy,
                   n_peaks: int, *, px_mm: float, image_score, max_template: int = 400, n_coarse: int = 40,
                   cache: dict | None = None, image_score_wide=None, image_score_mid=None,
-                  coarse_step_max_mm: float = COARSE_STEP_MAX_MM, keep_spectra: bool = True) -> list[Hyp]:
+                  coarse_step_max_mm: float = COARSE_STEP_MAX_MM, keep_spectra: bool = True,
+                  turn_maxima: int = 0, self_occlusion: bool = False) -> list[Hyp]:
     """Exhaustive oriented chamfer matching of the model's horizontal edges on the table planes.
 
     The image's edge pixels are cast onto each horizontal plane that carries model edges (height
@@ -220,9 +285,13 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     exact perspective, full-resolution edges and their directions). ``px_mm`` is the plane footprint
     of one image pixel. Returns the best distinct (x, y, theta) as starts. ``keep_spectra``: keep the
     rotated template's spectra in ``cache`` for a next plane on the same grid (the caller knows
-    whether one follows: a plane's spectra take up to ~140 MB).
+    whether one follows: a plane's spectra take up to ~140 MB). ``turn_maxima``: at least this many
+    local maxima of every turn are re-scored in the image. ``self_occlusion``: the image scores
+    leave out the samples the model hides behind itself from where the camera sees each pose
+    (:func:`_unhidden_scores`; the masks are kept in ``cache`` too).
     """
     cache = {} if cache is None else cache
+    masks = cache.setdefault(("self_hidden", state), {})     # per view bin and template
     rs = model.resting_states[state]
     P = transform_points(rs.T_rest_obj, model.samples_obj)
     D = model.sample_dir_obj @ rs.T_rest_obj[:3, :3].T
@@ -327,7 +396,7 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
     # global ranking: also take the best local maxima of every turn and let the image decide
     # (wide soft chamfer score with exact perspective), keeping the best n_coarse of both
     if image_score_wide is not None and nt > 1:
-        k_t = local_maxima_per_turn(x1 - x0, y1 - y0, diam)
+        k_t = max(local_maxima_per_turn(x1 - x0, y1 - y0, diam), turn_maxima)
         # a turn's 3 x 3 maxima (OpenCV's dilation: the same maximum as scipy's with the border
         # repeated, ten times faster)
         peak = np.stack([cv2.dilate(sl, np.ones((3, 3), np.uint8)) for sl in score])
@@ -338,8 +407,12 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         ay = np.concatenate([cy, y0 + iy2 * b])
         at = np.concatenate([cth, it2 * dth])
         _, _, _, w_w, w_sel = template(max(3.0 * px_mm, diam / 60.0), 80)
-        wide = image_score_wide(ax, ay, at, P[w_sel] + np.array([0.0, 0.0, height_mm]), D[w_sel], w_w,
-                                normals=edge_faces_of(model, rs.T_rest_obj, w_sel))
+        w_args = (P[w_sel] + np.array([0.0, 0.0, height_mm]), D[w_sel], w_w)
+        if self_occlusion:
+            wide = _unhidden_scores(image_score_wide, model, rs.T_rest_obj, C, ax, ay, at, *w_args, w_sel,
+                                    height_mm, edge_faces_of(model, rs.T_rest_obj, w_sel), masks)
+        else:
+            wide = image_score_wide(ax, ay, at, *w_args, normals=edge_faces_of(model, rs.T_rest_obj, w_sel))
         order = np.argsort(-wide, kind="stable")
         keep = _nms(ax[order], ay[order], at[order], 1.5 * b, 1.5 * dth, n_coarse)
         cx, cy, cth = ax[order][keep], ay[order][keep], at[order][keep]
@@ -362,7 +435,9 @@ def _plane_search(model: PreparedModel, state: int, height_mm: float, rays, C, e
         hx = (hx[:, None] + DX.ravel()[None, :]).ravel()
         hy = (hy[:, None] + DY.ravel()[None, :]).ravel()
         ht = (ht[:, None] + DT.ravel()[None, :]).ravel()
-        fscore = image_score(hx, hy, ht, f_P, f_D, f_w, normals=f_N)
+        fscore = _unhidden_scores(image_score, model, rs.T_rest_obj, C, hx, hy, ht, f_P, f_D, f_w, f_sel, height_mm,
+                                  f_N, masks) if self_occlusion else \
+            image_score(hx, hy, ht, f_P, f_D, f_w, normals=f_N)
         best_of_cell = np.arange(len(hx) // nb) * nb + np.argmax(fscore.reshape(-1, nb), axis=1)
         order = best_of_cell[np.argsort(-fscore[best_of_cell])]
         hx, hy, ht, fscore = hx[order], hy[order], ht[order], fscore[order]
@@ -607,7 +682,8 @@ def centre_extent(table_extent_xy, diameter_mm: float):
 def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, height_offsets_mm=(0.0,),
             resting_states=None, min_state_probability: float = 0.1, n_starts: int = 6, n_planar: int = 10,
             max_edges: int = 60000, rng=None, timings: dict | None = None, table_extent_xy=None,
-            n_coarse: int = 40, coarse_step_max_mm: float = COARSE_STEP_MAX_MM, threads: int = SEARCH_THREADS):
+            n_coarse: int = 40, coarse_step_max_mm: float = COARSE_STEP_MAX_MM, turn_maxima: int = 0,
+            self_occlusion: bool = False, threads: int = SEARCH_THREADS):
     """Stages 1 and 2: starts from the plane search, aligned in the table plane, best first.
     ``table_extent_xy`` (x0, x1, y0, y1 mm): where the part's centre can be (the table and a margin);
     the floor and the machine's walls in the background are not searched. ``threads``: resting
@@ -616,7 +692,7 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
     timings = {} if timings is None else timings
     memo = ("search", id(model), T_cam_table.tobytes(), tuple(height_offsets_mm),
             None if resting_states is None else tuple(resting_states), min_state_probability, n_starts, n_planar,
-            n_coarse, coarse_step_max_mm,
+            n_coarse, coarse_step_max_mm, turn_maxima, self_occlusion,
             None if table_extent_xy is None else tuple(table_extent_xy))
     if memo in eimg.cache:              # same image, model and table pose: reuse (recognition)
         timings.setdefault("search", 0.0)
@@ -671,7 +747,8 @@ def find_starts(eimg: EdgeImage, K, dist, T_cam_table, model: PreparedModel, *, 
                 for hyp in _plane_search(model, st, h, rays, C, ext, n_starts, px_mm=px_mm, n_coarse=n_coarse,
                                          image_score=scorer, cache=spectra, image_score_wide=scorer_wide,
                                          image_score_mid=scorer_mid, coarse_step_max_mm=coarse_step_max_mm,
-                                         keep_spectra=keep_spectra)]
+                                         keep_spectra=keep_spectra, turn_maxima=turn_maxima,
+                                         self_occlusion=self_occlusion)]
 
     if threads > 1 and len(states) > 1:
         with ThreadPoolExecutor(min(threads, len(states))) as pool:

@@ -301,3 +301,37 @@ def test_the_correlations_rolled_crop_is_numpys_roll_and_crop():
         ref = np.zeros((ny, nx), np.float32)
         ref[:] = np.roll(a, (r, r), axis=(0, 1))[:ny, :nx]
         np.testing.assert_array_equal(out, ref)
+
+
+def test_a_models_own_body_hides_what_lies_behind_it_from_the_camera():
+    """The self-occlusion masks of the plane search (``search._self_hidden``): an L-shaped block (a
+    base 180 x 80 x 10 mm, a 30 mm wall 110 mm high at its +x end) seen from 45 deg above its +x side
+    hides the base's top edges behind the wall and shows the wall's top and the base's far end
+    beyond the wall's shadow; what turns away from the camera is left to the scorer's facing test.
+    The bins of :func:`search._view_bins` follow the part's turn."""
+    import trimesh
+    from shapely.geometry import Polygon
+
+    from app.vision.object_pose.search import VIEW_BIN_DEG, _self_hidden, _view_bins
+
+    section = Polygon([(-120, 0), (60, 0), (60, 110), (30, 110), (30, 10), (-120, 10)])   # x, z
+    mesh = trimesh.creation.extrude_polygon(section, 80.0)
+    mesh.apply_transform(make_pose(np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]), [0.0, 40.0, 0.0]))   # section in x-z
+    model = prepare_model(mesh, "ell", upright_only=True)
+    T_rest = model.resting_states[0].T_rest_obj
+    P = model.samples_obj @ T_rest[:3, :3].T + T_rest[:3, 3]
+    P -= [0.0, 0.0, P[:, 2].min()]
+    along_y = np.abs(model.sample_dir_obj @ T_rest[:3, :3].T)[:, 1] > 0.9
+    base_top, wall_top = along_y & (np.abs(P[:, 2] - 10) < 0.5), along_y & (np.abs(P[:, 2] - 110) < 0.5)
+    x0 = P[:, 0].min()
+    # the camera 1 m from the block, 45 deg up, on its +x side; the block turned by 0 and 90 deg
+    C = np.array([1000.0 / np.sqrt(2), 0.0, 1000.0 / np.sqrt(2)])
+    bins, dist = _view_bins(model, T_rest, C, np.zeros(2), np.zeros(2), np.radians([0.0, 90.0]), 0.0)
+    n_el = int(round(45.0 / VIEW_BIN_DEG))
+    assert bins[0] == 500 + n_el and bins[1] == int(round(270.0 / VIEW_BIN_DEG)) * 1000 + 500 + n_el, bins
+    assert abs(dist - 1000.0) < 60.0
+    hidden = _self_hidden(model, T_rest, int(bins[0]), dist, np.arange(len(P)))
+    behind_wall = base_top & (np.abs(P[:, 0] - (x0 + 150.0)) < 0.5)     # where the base meets the wall
+    assert behind_wall.any() and hidden[behind_wall].all()
+    assert not hidden[wall_top].any()
+    assert not hidden[base_top & (np.abs(P[:, 0] - x0) < 0.5)].any()   # 150 mm before a wall 100 mm high: seen
