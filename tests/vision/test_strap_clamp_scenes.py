@@ -3,6 +3,8 @@ scene, low lamp, spindle in view), located as the service locates a setup's name
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -80,7 +82,10 @@ def test_a_pin_block_whose_place_the_image_does_not_fix_is_not_located():
     away on a clamp's heel block with a 31 mm sigma in x (0.3 deg in rotation, 68 deg off): not a
     place, and it was returned as one. Which refusal catches it depends on the render's last digits: on
     the libraries of 2026-11-29 (a fresh install) two poses fit it within 1 % and it is refused as
-    ambiguous before its sigma is taken; the sigma rule itself is tested in test_place_not_fixed."""
+    ambiguous before its sigma is taken; on those of 2026-12-05 (a fresh install; the engine of the
+    day before gives the same) its best fit supports 38 % of its edges and it is not found. The sigma
+    rule itself is tested in test_place_not_fixed."""
     why = _part_refused(40)
     assert (why["kind"] == "not_found" and "does not fix its place" in why["reason"]) or \
-        (why["kind"] == "ambiguous" and "two different poses fit almost equally well" in why["reason"]), why
+        (why["kind"] == "ambiguous" and "two different poses fit almost equally well" in why["reason"]) or \
+        (why["kind"] == "not_found" and re.search(r"supports only \d+% of its visible edges", why["reason"])), why
