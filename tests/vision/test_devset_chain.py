@@ -299,17 +299,21 @@ def _fixtures(scene_id: str):
     return sc, res, truth
 
 
+def _assert_fixture_at_its_place(sc, res, truth: dict, name: str) -> None:
+    """The fixture ``name`` is among the located objects within 0.5 mm and 0.1 deg of its truth."""
+    obj = next((o for o in res.objects if o["name"] == name), None)
+    assert obj is not None, res.not_found
+    model = next(c for c in sc.fixture_candidates if c.name == name).prepare()
+    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), truth[name], model)
+    assert np.linalg.norm(err[:3]) < 0.5 and np.nanmax(np.abs(err[3:])) < 0.1, (name, err)
+
+
 @pytest.mark.parametrize("scene_id", ["setup_009", "setup_014"])
 def test_vise_found_where_a_coarse_grid_missed_it(scene_id):
     """A vise is a third of the table, half hidden by its jaw and its part: on a 16 mm / 7 deg coarse
     grid its true cell ranked 57th-376th and never reached the fine stage. Fixtures are searched on a
     grid of at most 8 mm with more cells re-scored (``localize.FIXTURE_OPTIONS``)."""
-    sc, res, truth = _fixtures(scene_id)
-    obj = next((o for o in res.objects if o["name"] == "vise_body"), None)
-    assert obj is not None, res.not_found
-    body = next(c for c in sc.fixture_candidates if c.name == "vise_body")
-    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), truth["vise_body"], body.prepare())
-    assert np.linalg.norm(err[:3]) < 0.5 and np.nanmax(np.abs(err[3:])) < 0.1, err
+    _assert_fixture_at_its_place(*_fixtures(scene_id), "vise_body")
 
 
 def test_vise_found_where_its_own_body_hides_its_lower_edges():
@@ -319,12 +323,7 @@ def test_vise_found_where_its_own_body_hides_its_lower_edges():
     refused). Fixtures now have 64 maxima of every turn re-scored, and the image scores leave out
     the edges the vise hides behind its own body (``search._self_hidden``): it is found. Either
     alone does not find it."""
-    sc, res, truth = _fixtures("setup_029")
-    obj = next((o for o in res.objects if o["name"] == "vise_body"), None)
-    assert obj is not None, res.not_found
-    body = next(c for c in sc.fixture_candidates if c.name == "vise_body")
-    err = pose_error_6dof(np.asarray(obj["T_table_obj"]), truth["vise_body"], body.prepare())
-    assert np.linalg.norm(err[:3]) < 0.5 and np.nanmax(np.abs(err[3:])) < 0.1, err
+    _assert_fixture_at_its_place(*_fixtures("setup_029"), "vise_body")
 
 
 def test_a_vise_a_plate_hides_is_found_under_the_plate():
@@ -339,10 +338,7 @@ def test_a_vise_a_plate_hides_is_found_under_the_plate():
     sc, _, _ = _scene("setup_021")
     truth = {o["name"]: np.asarray(o["T_table_object"]) for o in sc.gt["objects"]}
     for name in ("vise_body", "vise_jaw"):
-        fx = next(o for o in res.objects if o["name"] == name)
-        model = next(c for c in sc.fixture_candidates if c.name == name).prepare()
-        e = pose_error_6dof(np.asarray(fx["T_table_obj"]), truth[name], model)
-        assert np.linalg.norm(e[:3]) < 0.5 and np.nanmax(np.abs(e[3:])) < 0.1, (name, e)
+        _assert_fixture_at_its_place(sc, res, truth, name)
     assert obj["chain"] == ["a declared riser 25 mm high", "vise_body seat", "table"], obj["chain"]
     assert set(obj["held_by"]) == {"vise_body", "vise_jaw"}, obj["held_by"]
     assert np.linalg.norm(err[:3]) < 0.2 and np.nanmax(np.abs(err[3:])) < 0.1, err
