@@ -67,5 +67,11 @@ def workpiece_error(obj: dict, gt: dict, part_mesh: str):
     truth = next(o for o in gt["objects"] if o["kind"] == "workpiece")
     model = prepare_model(trimesh.load(DEVSET / "meshes" / part_mesh, force="mesh"), name=part_mesh)
     err = pose_error_6dof(np.asarray(obj["T_table_obj"]), np.asarray(truth["T_table_object"]), model)
+    return err, within_3_sigma(obj, err)
+
+
+def within_3_sigma(obj: dict, err) -> bool:
+    """Whether every component of ``err`` (x, y, z mm, rx, ry, rz deg) lies within 3 of the located
+    object's stated sigma."""
     keys = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
-    return err, all(abs(e) <= 3 * obj["sigma"][k] for k, e in zip(keys, err))
+    return all(abs(e) <= 3 * obj["sigma"][k] for k, e in zip(keys, err))

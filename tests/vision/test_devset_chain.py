@@ -18,6 +18,7 @@ from app.vision.localize import Candidate, localize
 from app.vision.object_pose import locate as locate_module
 from app.vision.object_pose import refine as refine_module
 from app.vision.pose_errors import pose_error_6dof
+from tests.support.devset_setup import within_3_sigma as _within_3_sigma
 
 pytestmark = pytest.mark.slow
 DEVSET = Path(__file__).resolve().parents[3] / "shared" / "data" / "devset"
@@ -68,9 +69,6 @@ def _run(scene_id: str, recode=None, K=None, **kw):
     return res, obj, errs[k]
 
 
-def _within_3_sigma(obj, err):
-    keys = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
-    return all(abs(e) <= 3 * obj["sigma"][k] for k, e in zip(keys, err))
 
 
 def test_part_in_the_vise_on_hidden_parallels():
