@@ -70,7 +70,7 @@ class GammaReading:
         return asdict(self)
 
 
-def _cell_grid(dictionary: cv2.aruco.Dictionary, marker_id: int) -> np.ndarray | None:
+def marker_cells(dictionary: cv2.aruco.Dictionary, marker_id: int) -> np.ndarray | None:
     """(n + 2, n + 2) int: the marker's cells, 1 white, with its black border; None for an unknown id."""
     if not 0 <= marker_id < len(dictionary.bytesList):
         return None
@@ -156,6 +156,33 @@ def _group_bias(group, gamma: float) -> float | None:
     return float(coef[2])
 
 
+#: a marker's white cells whose median grey reaches this are clipped at the sensor's top
+CLIP_GREY = 250.0
+
+
+def clipped_edge_bias_px(gray: np.ndarray, corners_px: np.ndarray, grid: np.ndarray, gamma: float) -> float:
+    """How far a clipped marker's 50 % crossings lie towards their bright side (px; negative: towards
+    the dark side), read from its own cells as :func:`read_encoding_gamma` reads the gamma; 0.0
+    where its white cells do not clip (there the crossings hold at the right gamma) or too few
+    crossings are read.
+
+    A white cell brighter than the sensor's top reads flat at 255: the level an edge's 50 % crossing
+    is taken against is cut off, and the crossing moves towards the dark side, the marker's black
+    square (and each black cell) looking smaller. Its cells have known, equal widths, so their
+    crossings tell by how much; the border's edges, printed and lit alike, move as much.
+    gray : (H, W) uint8; corners_px : (4, 2) rough corners (distorted px, OpenCV order); grid : the
+    marker's cells with its black border (1 white, :func:`marker_cells`)."""
+    c = np.asarray(corners_px, float).reshape(4, 2)
+    side = float(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1).min()) / grid.shape[0]
+    if side < MIN_CELL_PX:
+        return 0.0
+    groups = _marker_transitions(np.asarray(gray, np.float64), grid, c)
+    if not groups or np.median(np.concatenate([g[5] for g in groups])) < CLIP_GREY:
+        return 0.0
+    b = [v for v in (_group_bias(g, gamma) for g in groups) if v is not None]
+    return float(np.mean(b)) * side if b else 0.0
+
+
 def _nearest_zero(bias: Callable[[float], float | None], assumed: float) -> float | None:
     """The gamma where ``bias`` (px, None where it cannot be read) changes sign, on a 0.1 grid over
     :data:`GAMMA_RANGE` grown by 0.2, linearly between the two grid points around it; of several, the
@@ -194,7 +221,7 @@ def read_encoding_gamma(gray: np.ndarray, corners_px: dict[int, np.ndarray],
     groups, cell_px = [], []
     for mid, c in corners_px.items():
         c = np.asarray(c, float).reshape(4, 2)
-        grid = _cell_grid(dictionary, int(mid))
+        grid = marker_cells(dictionary, int(mid))
         if grid is None:
             continue
         side = float(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1).min()) / grid.shape[0]

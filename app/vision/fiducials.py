@@ -66,7 +66,7 @@ from scipy.spatial.transform import Rotation
 
 from app.geometry.fiducial_layout import PLACEMENT_KEYS, placement_sigma
 from app.geometry.transforms import check_pose, make_pose, rvec_tvec_to_pose, transform_points
-from app.vision.encoding_gamma import GammaReading, read_encoding_gamma
+from app.vision.encoding_gamma import GammaReading, marker_cells, clipped_edge_bias_px, read_encoding_gamma
 from app.vision.intrinsics import (
     DEFAULT_INTRINSICS_SIGMA,
     INTRINSICS_STEPS,
@@ -258,6 +258,28 @@ def _fit_line(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
     return c, d, keep
 
 
+def _lit_side(pts: np.ndarray, contrast: np.ndarray) -> np.ndarray:
+    """The crossings of one side that lie on the line its fully lit profiles give.
+
+    Where at least 30 % of a side's profiles have 0.7 of its full contrast (the 90th percentile),
+    their crossings fix the line and the others are kept only within 3 MAD (at least 0.1 px) of it:
+    a darker profile is a margin in shadow, whose crossing holds, or an object in front of the plate
+    whose edge runs across the border, whose crossing does not (devset setup_039, marker 90: a
+    grey edge 1-2 px inside the border along half of one side turned that side by a pixel). Else
+    every crossing stays."""
+    strong = contrast >= 0.7 * np.percentile(contrast, 90)
+    if strong.sum() < max(4, 0.3 * len(pts)):
+        return pts
+    line = _fit_line(pts[strong])
+    if line is None:
+        return pts
+    c, d, inl = line
+    r = (pts - c) @ np.array([-d[1], d[0]])
+    rs = r[strong][inl]
+    tol = max(3.0 * 1.4826 * float(np.median(np.abs(rs - np.median(rs)))), 0.1)
+    return pts[np.abs(r) <= tol]
+
+
 def _intersect(l1, l2) -> np.ndarray | None:
     (p1, d1, _), (p2, d2, _) = l1, l2
     A = np.column_stack([d1, -d2])
@@ -276,7 +298,7 @@ def linearise(gray: np.ndarray, gamma: float = 2.2) -> np.ndarray:
 def refine_marker_corners(gray: np.ndarray, corners_px: np.ndarray, K: np.ndarray,
                           dist: np.ndarray, bits: int, *, gamma: float = 2.2,
                           iterations: int = 2, linear: np.ndarray | None = None,
-                          return_edges: bool = False):
+                          return_edges: bool = False, cells: np.ndarray | None = None):
     """Subpixel corners of one marker from line fits to its outer border.
 
     gray : (H, W) uint8 raw image; corners_px : (4, 2) rough corners (distorted px, OpenCV order);
@@ -284,7 +306,9 @@ def refine_marker_corners(gray: np.ndarray, corners_px: np.ndarray, K: np.ndarra
     computed. Returns (4, 2) corners in IDEAL (undistorted) pixels with the same K, or None when the
     marker is too small or an edge cannot be measured. With ``return_edges`` returns
     ``(corners, edges)``, edges a list of 4 arrays (N_i, 2): the inlier edge points (ideal px) of
-    side i (corner i -> corner i + 1).
+    side i (corner i -> corner i + 1). cells : the marker's cells (``encoding_gamma.marker_cells``):
+    where its white clips at the sensor's top, the crossings' shift towards the black that its cells
+    show is taken off (:func:`app.vision.encoding_gamma.clipped_edge_bias_px`); None: not corrected.
     """
     H, W = gray.shape
     lin = linearise(gray, gamma) if linear is None else linear
@@ -296,6 +320,7 @@ def refine_marker_corners(gray: np.ndarray, corners_px: np.ndarray, K: np.ndarra
     half_w = float(np.clip(0.7 * cell, 1.5, 8.0))       # profile half-length (px) across the edge
     step = 0.2
     offs = np.arange(-half_w, half_w + 1e-9, step)
+    clip_bias = 0.0 if cells is None else clipped_edge_bias_px(gray, corners_px, cells, gamma)
     centre = ideal.mean(axis=0)
     lines = [None] * 4
     edge_pts = [None] * 4
@@ -329,11 +354,18 @@ def refine_marker_corners(gray: np.ndarray, corners_px: np.ndarray, K: np.ndarra
             bright = np.median(val[:, -k:])
             if bright - dark < 0.05:
                 return None
-            level = (dark + bright) / 2
-            # 50 % crossing per profile: the first rising crossing from the dark side
+            # 50 % crossing per profile, the first rising one from the dark side, between the
+            # profile's own dark and bright ends (medians of its inner and outer fifth): a shadow over
+            # part of a margin halves its light there, and against one level for the whole side
+            # those crossings sat 1-2 px outward and turned the side (devset setup_016, marker 57:
+            # 1.9 px RMS). A profile with under 0.3 of the side's contrast has no margin to cross to.
+            dark_p = np.median(val[:, :k], axis=1, keepdims=True)
+            bright_p = np.median(val[:, -k:], axis=1, keepdims=True)
+            level = (dark_p + bright_p) / 2
             above = val >= level
             idx = np.argmax(above, axis=1)
-            ok = (idx > 0) & above[np.arange(len(ts)), idx]
+            ok = (idx > 0) & above[np.arange(len(ts)), idx] & (bright_p[:, 0] - dark_p[:, 0] >= 0.3 * (bright - dark))
+            level = level[:, 0][ok]
             j = idx[ok]
             rows = np.nonzero(ok)[0]
             v0 = val[rows, j - 1]
@@ -342,7 +374,9 @@ def refine_marker_corners(gray: np.ndarray, corners_px: np.ndarray, K: np.ndarra
             s50 = offs[j - 1] + frac * step
             if len(rows) < 4:
                 return None
-            pts = P[rows] + s50[:, None] * n
+            # a clipped white moved every crossing towards the black by clip_bias (negative)
+            pts = P[rows] + (s50 - clip_bias)[:, None] * n
+            pts = _lit_side(pts, (bright_p - dark_p)[rows, 0])
             lines[i] = _fit_line(pts)
             if lines[i] is None:
                 return None
@@ -686,8 +720,8 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
             continue
         c_ideal = None
         if refine_corners:
-            got = refine_marker_corners(gray, cs[0], K, dist, dic.markerSize, linear=lin,
-                                        return_edges=True)
+            got = refine_marker_corners(gray, cs[0], K, dist, dic.markerSize, gamma=gamma, linear=lin,
+                                        return_edges=True, cells=marker_cells(dic, i))
             c_ideal = None
             if got is not None:
                 c_ideal, edges[i] = got
