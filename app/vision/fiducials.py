@@ -66,7 +66,7 @@ from scipy.spatial.transform import Rotation
 
 from app.geometry.fiducial_layout import PLACEMENT_KEYS, placement_sigma
 from app.geometry.transforms import check_pose, make_pose, rvec_tvec_to_pose, transform_points
-from app.vision.encoding_gamma import GammaReading, marker_cells, clipped_edge_bias_px, read_encoding_gamma
+from app.vision.encoding_gamma import GammaReading, clipped_edge_bias_px, marker_cells, read_encoding_gamma
 from app.vision.intrinsics import (
     DEFAULT_INTRINSICS_SIGMA,
     INTRINSICS_STEPS,
