@@ -31,7 +31,7 @@ from app.vision.object_pose.clamped_starts import clamped_starts
 from app.vision.object_pose.options import LocateOptions
 from app.vision.object_pose.planar_fit import sample_subset
 from app.vision.object_pose.pose_params import FREE_6DOF, flat_at, perturb3
-from app.vision.object_pose.refine import edge_support, refine_pose
+from app.vision.object_pose.refine import edge_support, near_clipped, refine_pose
 from app.vision.object_pose.results import ObjectFailure, ObjectPose
 from app.vision.object_pose.search import (
     Hyp,
@@ -308,7 +308,14 @@ class LocateContext:
         :data:`SHARP_PX`, once per pose (:func:`_sharper` and :func:`_rivals` both ask for the best's)."""
         key = np.asarray(T, float).tobytes()
         if key not in self._sharp:
-            self._sharp[key] = self.support(T, support_px=SHARP_PX)[0]
+            share, es, sup = self.support(T, support_px=SHARP_PX)
+            if self.eimg.clipped is not None and len(sup):
+                # beside a clipped face every crossing sits toward the dark side (refine.near_clipped):
+                # the true reading of a white part looks no sharper than one slid along the line of sight
+                clear = ~near_clipped(self.eimg.clipped, es.uv_px, es.normal_uv, np.zeros(len(sup)))
+                if clear.sum() >= MIN_SHARP_SAMPLES:
+                    share = float(sup[clear].mean())
+            self._sharp[key] = share
         return self._sharp[key]
 
     def support(self, T, support_px: float = 1.5):
@@ -599,6 +606,8 @@ STRONGER_BY = 1.25
 SHARP_PX = 0.5
 #: a reading is "clearly sharper" when its share of sharply supported edges is higher by this
 SHARPER_BY = 0.1
+#: the sharp share leaves out samples beside clipped pixels while at least this many remain
+MIN_SHARP_SAMPLES = 20
 
 
 def _sharper(ctx: LocateContext, best: Fit, fits: list[Fit]) -> Fit:
