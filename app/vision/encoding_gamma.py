@@ -70,7 +70,7 @@ class GammaReading:
         return asdict(self)
 
 
-def marker_cells(dictionary: cv2.aruco.Dictionary, marker_id: int) -> np.ndarray | None:
+def _cell_grid(dictionary: cv2.aruco.Dictionary, marker_id: int) -> np.ndarray | None:
     """(n + 2, n + 2) int: the marker's cells, 1 white, with its black border; None for an unknown id."""
     if not 0 <= marker_id < len(dictionary.bytesList):
         return None
@@ -160,23 +160,37 @@ def _group_bias(group, gamma: float) -> float | None:
 CLIP_GREY = 250.0
 
 
-def clipped_edge_bias_px(gray: np.ndarray, corners_px: np.ndarray, grid: np.ndarray, gamma: float) -> float:
+def marker_transitions(gray: np.ndarray, corners_px: dict[int, np.ndarray],
+                       dictionary: cv2.aruco.Dictionary) -> dict[int, tuple[list, float]]:
+    """Each marker's profiles across its inner transitions (:func:`_marker_transitions`), read once for
+    the gamma (:func:`read_encoding_gamma`) and for the clipping (:func:`clipped_edge_bias_px`):
+    ``{id: (groups, cell px)}``. A marker of an unknown id or with cells under :data:`MIN_CELL_PX` is
+    left out. gray : (H, W) uint8 raw image; corners_px : rough corners (4, 2) per id, OpenCV's order."""
+    gray = np.asarray(gray, np.float64)
+    out: dict[int, tuple[list, float]] = {}
+    for mid, c in corners_px.items():
+        c = np.asarray(c, float).reshape(4, 2)
+        grid = _cell_grid(dictionary, int(mid))
+        if grid is None:
+            continue
+        side = float(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1).min()) / grid.shape[0]
+        if side < MIN_CELL_PX:
+            continue
+        out[int(mid)] = (_marker_transitions(gray, grid, c), side)
+    return out
+
+
+def clipped_edge_bias_px(transitions: tuple[list, float], gamma: float) -> float:
     """How far a clipped marker's 50 % crossings lie towards their bright side (px; negative: towards
-    the dark side), read from its own cells as :func:`read_encoding_gamma` reads the gamma; 0.0
-    where its white cells do not clip (there the crossings hold at the right gamma) or too few
-    crossings are read.
+    the dark side), read from its own cells (``transitions``: one marker's entry of
+    :func:`marker_transitions`) as :func:`read_encoding_gamma` reads the gamma; 0.0 where its white
+    cells do not clip (there the crossings hold at the right gamma) or too few crossings are read.
 
     A white cell brighter than the sensor's top reads flat at 255: the level an edge's 50 % crossing
     is taken against is cut off, and the crossing moves towards the dark side, the marker's black
     square (and each black cell) looking smaller. Its cells have known, equal widths, so their
-    crossings tell by how much; the border's edges, printed and lit alike, move as much.
-    gray : (H, W) uint8; corners_px : (4, 2) rough corners (distorted px, OpenCV order); grid : the
-    marker's cells with its black border (1 white, :func:`marker_cells`)."""
-    c = np.asarray(corners_px, float).reshape(4, 2)
-    side = float(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1).min()) / grid.shape[0]
-    if side < MIN_CELL_PX:
-        return 0.0
-    groups = _marker_transitions(np.asarray(gray, np.float64), grid, c)
+    crossings tell by how much; the border's edges, printed and lit alike, move as much."""
+    groups, side = transitions
     if not groups or np.median(np.concatenate([g[5] for g in groups])) < CLIP_GREY:
         return 0.0
     b = [v for v in (_group_bias(g, gamma) for g in groups) if v is not None]
@@ -209,25 +223,20 @@ def _nearest_zero(bias: Callable[[float], float | None], assumed: float) -> floa
 
 
 def read_encoding_gamma(gray: np.ndarray, corners_px: dict[int, np.ndarray],
-                        dictionary: cv2.aruco.Dictionary, assumed: float = 2.2) -> GammaReading:
+                        dictionary: cv2.aruco.Dictionary, assumed: float = 2.2,
+                        transitions: dict[int, tuple[list, float]] | None = None) -> GammaReading:
     """The gamma to decode ``gray`` with, read from its markers.
 
     gray : (H, W) uint8 raw image; corners_px : rough corners (4, 2) per marker id, in OpenCV's
     order (the detector's); dictionary : the markers' ArUco dictionary; assumed : the gamma
-    otherwise assumed. The estimate replaces ``assumed`` only where the edge bias at ``assumed``
-    exceeds :data:`BIAS_LIMIT_PX` and the estimate lies in :data:`GAMMA_RANGE`.
+    otherwise assumed; transitions : :func:`marker_transitions` of those markers if already read.
+    The estimate replaces ``assumed`` only where the edge bias at ``assumed`` exceeds
+    :data:`BIAS_LIMIT_PX` and the estimate lies in :data:`GAMMA_RANGE`.
     """
-    gray = np.asarray(gray, np.float64)
+    if transitions is None:
+        transitions = marker_transitions(gray, corners_px, dictionary)
     groups, cell_px = [], []
-    for mid, c in corners_px.items():
-        c = np.asarray(c, float).reshape(4, 2)
-        grid = marker_cells(dictionary, int(mid))
-        if grid is None:
-            continue
-        side = float(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1).min()) / grid.shape[0]
-        if side < MIN_CELL_PX:
-            continue
-        got = _marker_transitions(gray, grid, c)
+    for got, side in transitions.values():
         groups += got
         cell_px += [side] * len(got)
 

@@ -66,7 +66,7 @@ from scipy.spatial.transform import Rotation
 
 from app.geometry.fiducial_layout import PLACEMENT_KEYS, placement_sigma
 from app.geometry.transforms import check_pose, make_pose, rvec_tvec_to_pose, transform_points
-from app.vision.encoding_gamma import GammaReading, clipped_edge_bias_px, marker_cells, read_encoding_gamma
+from app.vision.encoding_gamma import GammaReading, clipped_edge_bias_px, marker_transitions, read_encoding_gamma
 from app.vision.intrinsics import (
     DEFAULT_INTRINSICS_SIGMA,
     INTRINSICS_STEPS,
@@ -298,7 +298,7 @@ def linearise(gray: np.ndarray, gamma: float = 2.2) -> np.ndarray:
 def refine_marker_corners(gray: np.ndarray, corners_px: np.ndarray, K: np.ndarray,
                           dist: np.ndarray, bits: int, *, gamma: float = 2.2,
                           iterations: int = 2, linear: np.ndarray | None = None,
-                          return_edges: bool = False, cells: np.ndarray | None = None):
+                          return_edges: bool = False, clip_bias_px: float = 0.0):
     """Subpixel corners of one marker from line fits to its outer border.
 
     gray : (H, W) uint8 raw image; corners_px : (4, 2) rough corners (distorted px, OpenCV order);
@@ -306,9 +306,9 @@ def refine_marker_corners(gray: np.ndarray, corners_px: np.ndarray, K: np.ndarra
     computed. Returns (4, 2) corners in IDEAL (undistorted) pixels with the same K, or None when the
     marker is too small or an edge cannot be measured. With ``return_edges`` returns
     ``(corners, edges)``, edges a list of 4 arrays (N_i, 2): the inlier edge points (ideal px) of
-    side i (corner i -> corner i + 1). cells : the marker's cells (``encoding_gamma.marker_cells``):
-    where its white clips at the sensor's top, the crossings' shift towards the black that its cells
-    show is taken off (:func:`app.vision.encoding_gamma.clipped_edge_bias_px`); None: not corrected.
+    side i (corner i -> corner i + 1). clip_bias_px : how far a clipped white moved the crossings
+    towards their bright side (negative: towards the black), taken off every crossing
+    (:func:`app.vision.encoding_gamma.clipped_edge_bias_px`); 0: not corrected.
     """
     H, W = gray.shape
     lin = linearise(gray, gamma) if linear is None else linear
@@ -320,7 +320,6 @@ def refine_marker_corners(gray: np.ndarray, corners_px: np.ndarray, K: np.ndarra
     half_w = float(np.clip(0.7 * cell, 1.5, 8.0))       # profile half-length (px) across the edge
     step = 0.2
     offs = np.arange(-half_w, half_w + 1e-9, step)
-    clip_bias = 0.0 if cells is None else clipped_edge_bias_px(gray, corners_px, cells, gamma)
     centre = ideal.mean(axis=0)
     lines = [None] * 4
     edge_pts = [None] * 4
@@ -374,8 +373,7 @@ def refine_marker_corners(gray: np.ndarray, corners_px: np.ndarray, K: np.ndarra
             s50 = offs[j - 1] + frac * step
             if len(rows) < 4:
                 return None
-            # a clipped white moved every crossing towards the black by clip_bias (negative)
-            pts = P[rows] + (s50 - clip_bias)[:, None] * n
+            pts = P[rows] + (s50 - clip_bias_px)[:, None] * n
             pts = _lit_side(pts, (bright_p - dark_p)[rows, 0])
             lines[i] = _fit_line(pts)
             if lines[i] is None:
@@ -703,9 +701,11 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
     img: dict[int, np.ndarray] = {}
     warnings = []
     reading = None
+    # each marker's cells, read once for the gamma and for a clipped white's shift
+    single = {i: cs[0] for i, cs in found.items() if i in by_id and len(cs) == 1}
+    transitions = marker_transitions(gray, single, dic) if refine_corners else {}
     if read_gamma and refine_corners:
-        reading = read_encoding_gamma(gray, {i: cs[0] for i, cs in found.items() if i in by_id and len(cs) == 1},
-                                      dic, assumed=gamma)
+        reading = read_encoding_gamma(gray, single, dic, assumed=gamma, transitions=transitions)
         if reading.changed:
             warnings.append(reading.reason)
             gamma = reading.gamma
@@ -721,7 +721,9 @@ def locate_table(image: np.ndarray, K: np.ndarray, dist: np.ndarray, layout: dic
         c_ideal = None
         if refine_corners:
             got = refine_marker_corners(gray, cs[0], K, dist, dic.markerSize, gamma=gamma, linear=lin,
-                                        return_edges=True, cells=marker_cells(dic, i))
+                                        return_edges=True,
+                                        clip_bias_px=clipped_edge_bias_px(transitions[i], gamma) if i in transitions
+                                        else 0.0)
             c_ideal = None
             if got is not None:
                 c_ideal, edges[i] = got

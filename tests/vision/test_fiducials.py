@@ -478,7 +478,7 @@ def test_a_clipped_white_does_not_shrink_the_marker():
     towards the black: the square read 0.3-0.7 px small on the devset's brightest markers (setup_013,
     marker 85; setup_020, marker 90). The marker's own cells, black and white of equal widths, tell
     by how much (``encoding_gamma.clipped_edge_bias_px``); without them the crossings stay as read."""
-    from app.vision.encoding_gamma import marker_cells
+    from app.vision.encoding_gamma import clipped_edge_bias_px, marker_transitions
 
     dic = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_5X5_100)
     gray, truth = _marker_in_a_shadow(1.0, white=2.0, gamma=2.2)
@@ -491,7 +491,8 @@ def test_a_clipped_white_does_not_shrink_the_marker():
         return np.linalg.norm(np.roll(ideal, k, axis=0) - truth, axis=1)
 
     assert error().min() > 0.2                                   # each corner read inside the square
-    assert error(cells=marker_cells(dic, 7)).max() < 0.1
+    bias = clipped_edge_bias_px(marker_transitions(gray, {7: found[7][0]}, dic)[7], 2.2)
+    assert error(clip_bias_px=bias).max() < 0.1
 
 
 def test_the_devset_markers_are_read_where_they_are():
@@ -503,7 +504,7 @@ def test_the_devset_markers_are_read_where_they_are():
     90th percentile 0.094 px, worst 0.43 px (setup_039's marker 90, half of one side behind an object)."""
     from pathlib import Path
 
-    from app.vision.encoding_gamma import marker_cells
+    from app.vision.encoding_gamma import clipped_edge_bias_px, marker_transitions
     from app.vision.intrinsics import undistort_px
 
     root = Path(__file__).resolve().parents[3] / "shared" / "data" / "devset"
@@ -515,10 +516,12 @@ def test_the_devset_markers_are_read_where_they_are():
         K, dist = np.asarray(gt["camera"]["K"], float), np.asarray(gt["camera"]["dist"], float)
         dic = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, gt["dictionary"]))
         found, gray = detect_markers(cv2.imread(str(root / gt["image"]), cv2.IMREAD_UNCHANGED), gt["dictionary"])
+        transitions = marker_transitions(gray, {i: cs[0] for i, cs in found.items()}, dic)
         for m in gt["markers"]:
             if m["id"] not in found:
                 continue
-            ideal = refine_marker_corners(gray, found[m["id"]][0], K, dist, 5, cells=marker_cells(dic, m["id"]))
+            bias = clipped_edge_bias_px(transitions[m["id"]], 2.2) if m["id"] in transitions else 0.0
+            ideal = refine_marker_corners(gray, found[m["id"]][0], K, dist, 5, clip_bias_px=bias)
             if ideal is None:
                 continue
             truth = undistort_px(np.asarray(m["corners_px"], float), K, dist)
